@@ -1,0 +1,448 @@
+//! Environment maps: decoding HDR images and the projections that say where each pixel looks.
+//!
+//! Input: the bytes of an OpenEXR or Radiance HDR file (or raw frames from a capture source).
+//! Output: an [`EnvMap`] — linear RGB f32 pixels with a [`Projection`], every pixel finite and
+//! non-negative (bad pixels are clamped to 0 and counted, DESIGN.md). This is the first stage of the
+//! DESIGN.md pipeline; `sampling::domain` resamples it into the equal-area square.
+
+use glam::DVec3;
+use std::f64::consts::PI;
+use std::io::Cursor;
+
+/// Default refusal threshold for decoded images: 64 Mpixel (≈ 800 MB as RGB f32).
+pub const DEFAULT_MAX_PIXELS: u64 = 64 * 1024 * 1024;
+
+/// What went wrong reading an environment map. Each variant is a distinct, user-facing cause.
+#[derive(Debug, thiserror::Error)]
+pub enum InputError {
+    #[error("not an OpenEXR or Radiance HDR file (magic bytes {0})")]
+    UnsupportedFormat(String),
+    #[error("image of {width}×{height} pixels exceeds the limit of {limit} pixels")]
+    TooLarge { width: u64, height: u64, limit: u64 },
+    #[error("cannot decode {format} image: {reason}")]
+    Corrupt { format: &'static str, reason: String },
+    #[error("{0}")]
+    Unusable(String),
+}
+
+/// The lens model of a fisheye (angular) image. DESIGN.md "Fisheye".
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Lens {
+    /// r = θ / θ_max.
+    Equidistant,
+    /// r = sin(θ/2) / sin(θ_max/2).
+    Equisolid,
+}
+
+/// Where each pixel of an image looks, in the world frame of DESIGN.md (+Y up, −Z forward).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Projection {
+    /// Equirectangular 2:1, top row = zenith, image centre = −Z on the horizon.
+    LatLong,
+    /// A camera at the origin looking up: image centre = +Y, image top = −Z, image right = +X.
+    Fisheye {
+        lens: Lens,
+        /// Full field of view in degrees (e.g. 180, 185).
+        fov_deg: f64,
+        /// Image circle centre in pixels; `None` = the image centre.
+        centre: Option<(f64, f64)>,
+        /// Image circle radius in pixels; `None` = half the shorter side.
+        radius: Option<f64>,
+    },
+    /// An already-resampled HDS03 hemisphere square (sampling::mapping, `Domain::Upper`).
+    HemisphereSquare,
+}
+
+impl Projection {
+    /// The name used on the command line and in documents.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Projection::LatLong => "latlong",
+            Projection::Fisheye {
+                lens: Lens::Equidistant,
+                ..
+            } => "fisheye-equidistant",
+            Projection::Fisheye {
+                lens: Lens::Equisolid,
+                ..
+            } => "fisheye-equisolid",
+            Projection::HemisphereSquare => "hemisphere-square",
+        }
+    }
+
+    /// Parses a projection name; fisheye parameters take their defaults (180°, centred circle).
+    pub fn parse(name: &str) -> Result<Self, String> {
+        let fisheye = |lens| Projection::Fisheye {
+            lens,
+            fov_deg: 180.0,
+            centre: None,
+            radius: None,
+        };
+        match name {
+            "latlong" | "equirect" | "equirectangular" => Ok(Projection::LatLong),
+            "fisheye" | "fisheye-equidistant" | "angular" => Ok(fisheye(Lens::Equidistant)),
+            "fisheye-equisolid" => Ok(fisheye(Lens::Equisolid)),
+            "hemisphere-square" | "hds03" => Ok(Projection::HemisphereSquare),
+            _ => Err(format!(
+                "unknown projection '{name}' (expected latlong, fisheye-equidistant, \
+                 fisheye-equisolid or hemisphere-square)"
+            )),
+        }
+    }
+
+    /// The projection assumed when none is given: lat-long for 2:1 images, fisheye otherwise.
+    pub fn guess(width: usize, height: usize) -> Self {
+        if width == 2 * height {
+            Projection::LatLong
+        } else {
+            Projection::parse("fisheye").expect("known name")
+        }
+    }
+
+    /// Checks that an image of this size can carry this projection.
+    pub fn check_size(&self, width: usize, height: usize) -> Result<(), InputError> {
+        if width == 0 || height == 0 {
+            return Err(InputError::Unusable("the image is empty".into()));
+        }
+        match self {
+            Projection::LatLong if width != 2 * height => Err(InputError::Unusable(format!(
+                "a lat-long map must be 2:1, this one is {width}×{height}"
+            ))),
+            Projection::HemisphereSquare if width != height => Err(InputError::Unusable(format!(
+                "a hemisphere square must be square, this one is {width}×{height}"
+            ))),
+            Projection::Fisheye {
+                fov_deg, radius, ..
+            } => {
+                if !(fov_deg.is_finite() && *fov_deg > 0.0 && *fov_deg <= 360.0) {
+                    return Err(InputError::Unusable(format!(
+                        "fisheye field of view {fov_deg}° is outside (0, 360]"
+                    )));
+                }
+                if let Some(r) = radius
+                    && !(r.is_finite() && *r >= 1.0)
+                {
+                    return Err(InputError::Unusable(format!(
+                        "fisheye image circle radius {r} px is not ≥ 1"
+                    )));
+                }
+                Ok(())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// World direction and solid angle (sr) seen by pixel (i, j) of a `width`×`height` image, or
+    /// `None` for a pixel outside the image circle of a fisheye.
+    pub fn pixel(&self, i: usize, j: usize, width: usize, height: usize) -> Option<(DVec3, f64)> {
+        let (w, h) = (width as f64, height as f64);
+        match *self {
+            Projection::LatLong => {
+                // θ = π·v from +Y, φ = 2π(u − ½); the pixel is a band of latitude, so its solid
+                // angle is exact: Δφ·(cos θ₀ − cos θ₁).
+                let u = (i as f64 + 0.5) / w;
+                let v = (j as f64 + 0.5) / h;
+                let theta = PI * v;
+                let phi = 2.0 * PI * (u - 0.5);
+                let (st, ct) = theta.sin_cos();
+                let (sp, cp) = phi.sin_cos();
+                let dir = DVec3::new(st * sp, ct, -st * cp);
+                let t0 = PI * j as f64 / h;
+                let t1 = PI * (j + 1) as f64 / h;
+                Some((dir, 2.0 * PI / w * (t0.cos() - t1.cos())))
+            }
+            Projection::HemisphereSquare => {
+                let uv = glam::DVec2::new((i as f64 + 0.5) / w, (j as f64 + 0.5) / h);
+                let dir = crate::sampling::Domain::Upper.square_to_dir(uv);
+                Some((dir, 2.0 * PI / (w * h)))
+            }
+            Projection::Fisheye {
+                lens,
+                fov_deg,
+                centre,
+                radius,
+            } => {
+                let (cx, cy) = centre.unwrap_or((w * 0.5, h * 0.5));
+                let radius = radius.unwrap_or(0.5 * w.min(h));
+                let dx = (i as f64 + 0.5 - cx) / radius;
+                let dy = (j as f64 + 0.5 - cy) / radius;
+                let r = (dx * dx + dy * dy).sqrt();
+                if r > 1.0 {
+                    return None;
+                }
+                let theta_max = 0.5 * fov_deg.to_radians();
+                // θ(r) and dθ/dr for the lens model.
+                let (theta, dtheta_dr) = match lens {
+                    Lens::Equidistant => (r * theta_max, theta_max),
+                    Lens::Equisolid => {
+                        let s = (0.5 * theta_max).sin();
+                        let x = (r * s).min(1.0);
+                        (2.0 * x.asin(), 2.0 * s / (1.0 - x * x).max(1e-12).sqrt())
+                    }
+                };
+                let st = theta.sin();
+                // Image right → +X, image down → +Z (image top is −Z).
+                let (ax, az) = if r > 0.0 { (dx / r, dy / r) } else { (0.0, 0.0) };
+                let dir = DVec3::new(st * ax, theta.cos(), st * az);
+                // dω = sin θ dθ dφ and dA = r dr dφ, so dω/dA = sin θ · θ'(r) / r; at r → 0,
+                // sin θ / r → θ'(0). Pixel area is 1/radius² in these units.
+                let sin_over_r = if r > 1e-9 { st / r } else { dtheta_dr };
+                Some((dir, sin_over_r * dtheta_dr / (radius * radius)))
+            }
+        }
+    }
+}
+
+/// Counts of what had to be repaired in the input.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct InputRepairs {
+    /// Pixels with a NaN or infinite channel (set to 0).
+    pub non_finite_pixels: u64,
+    /// Pixels with a negative channel (clamped to 0).
+    pub negative_pixels: u64,
+}
+
+impl InputRepairs {
+    pub fn clamped_pixels(&self) -> u64 {
+        self.non_finite_pixels + self.negative_pixels
+    }
+}
+
+/// A decoded environment map: linear RGB radiance, row-major from the top row, with its projection.
+#[derive(Clone, Debug)]
+pub struct EnvMap {
+    pub width: usize,
+    pub height: usize,
+    pub pixels: Vec<[f32; 3]>,
+    pub projection: Projection,
+    /// What was clamped while loading.
+    pub repairs: InputRepairs,
+}
+
+impl EnvMap {
+    /// Builds a map from raw pixels, clamping bad ones (NaN, ±inf, negative) to 0 and counting them.
+    pub fn from_pixels(
+        width: usize,
+        height: usize,
+        mut pixels: Vec<[f32; 3]>,
+        projection: Projection,
+    ) -> Result<Self, InputError> {
+        projection.check_size(width, height)?;
+        if pixels.len() != width * height {
+            return Err(InputError::Unusable(format!(
+                "{} pixels for a {width}×{height} image",
+                pixels.len()
+            )));
+        }
+        let repairs = sanitize(&mut pixels);
+        Ok(EnvMap {
+            width,
+            height,
+            pixels,
+            projection,
+            repairs,
+        })
+    }
+
+    /// Decodes an OpenEXR or Radiance HDR file; `projection = None` guesses from the aspect.
+    pub fn decode(
+        bytes: &[u8],
+        projection: Option<Projection>,
+        max_pixels: u64,
+    ) -> Result<Self, InputError> {
+        let (format, name) = sniff(bytes)?;
+        // Read the header first and refuse oversized images before any pixel buffer exists.
+        let dims = image::ImageReader::with_format(Cursor::new(bytes), format)
+            .into_dimensions()
+            .map_err(|e| corrupt(name, e))?;
+        let (width, height) = (dims.0 as u64, dims.1 as u64);
+        if width * height > max_pixels {
+            return Err(InputError::TooLarge {
+                width,
+                height,
+                limit: max_pixels,
+            });
+        }
+        let (w, h) = (width as usize, height as usize);
+        let projection = projection.unwrap_or_else(|| Projection::guess(w, h));
+        projection.check_size(w, h)?;
+
+        let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
+        let mut limits = image::Limits::default();
+        limits.max_image_width = Some(dims.0);
+        limits.max_image_height = Some(dims.1);
+        limits.max_alloc = Some(max_pixels.saturating_mul(32));
+        reader.limits(limits);
+        let img = reader.decode().map_err(|e| corrupt(name, e))?;
+        let rgb = img.into_rgb32f();
+        let pixels: Vec<[f32; 3]> = rgb.pixels().map(|p| p.0).collect();
+        Self::from_pixels(w, h, pixels, projection)
+    }
+
+    /// Reads and decodes a file.
+    pub fn open(
+        path: &std::path::Path,
+        projection: Option<Projection>,
+        max_pixels: u64,
+    ) -> anyhow::Result<Self> {
+        let bytes = std::fs::read(path)
+            .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+        Self::decode(&bytes, projection, max_pixels)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    /// Luminance (Rec. 709 / sRGB primaries) of a linear RGB triple.
+    pub fn luminance(rgb: [f32; 3]) -> f32 {
+        0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]
+    }
+
+    /// Brute-force ∫ L dω over the pixels whose direction lies in `domain` (ALGORITHMS.md §8).
+    pub fn integral(&self, domain: crate::sampling::Domain) -> [f64; 3] {
+        let mut sum = [0.0f64; 3];
+        for j in 0..self.height {
+            for i in 0..self.width {
+                if let Some((dir, sr)) = self.projection.pixel(i, j, self.width, self.height)
+                    && domain.contains(dir)
+                {
+                    let p = self.pixels[j * self.width + i];
+                    for c in 0..3 {
+                        sum[c] += p[c] as f64 * sr;
+                    }
+                }
+            }
+        }
+        sum
+    }
+}
+
+/// Luminance of a linear RGB triple in f64.
+pub fn luminance64(rgb: [f64; 3]) -> f64 {
+    0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]
+}
+
+/// Clamps NaN/inf and negative channels to 0 and counts the pixels touched.
+pub fn sanitize(pixels: &mut [[f32; 3]]) -> InputRepairs {
+    let mut r = InputRepairs::default();
+    for p in pixels.iter_mut() {
+        if p.iter().any(|c| !c.is_finite()) {
+            r.non_finite_pixels += 1;
+            for c in p.iter_mut() {
+                if !c.is_finite() {
+                    *c = 0.0;
+                }
+            }
+        }
+        if p.iter().any(|&c| c < 0.0) {
+            r.negative_pixels += 1;
+            for c in p.iter_mut() {
+                *c = c.max(0.0);
+            }
+        }
+    }
+    r
+}
+
+fn corrupt(format: &'static str, e: image::ImageError) -> InputError {
+    match e {
+        image::ImageError::Limits(l) => InputError::Unusable(format!("{format} image: {l}")),
+        other => InputError::Corrupt {
+            format,
+            reason: other.to_string(),
+        },
+    }
+}
+
+/// Identifies the format from the magic bytes, never from a name or content type.
+fn sniff(bytes: &[u8]) -> Result<(image::ImageFormat, &'static str), InputError> {
+    const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+    if bytes.starts_with(&EXR_MAGIC) {
+        Ok((image::ImageFormat::OpenExr, "OpenEXR"))
+    } else if bytes.starts_with(b"#?") {
+        Ok((image::ImageFormat::Hdr, "Radiance HDR"))
+    } else {
+        let head: Vec<String> = bytes.iter().take(4).map(|b| format!("{b:02x}")).collect();
+        Err(InputError::UnsupportedFormat(if head.is_empty() {
+            "none: the input is empty".into()
+        } else {
+            head.join(" ")
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn latlong_conventions() {
+        let (w, h) = (64, 32);
+        let p = Projection::LatLong;
+        // Image centre looks along −Z on the horizon; u = ¾ looks along +X; top row is the zenith.
+        let (d, _) = p.pixel(w / 2, h / 2, w, h).unwrap();
+        assert!((d - DVec3::NEG_Z).length() < 0.1, "{d}");
+        let (d, _) = p.pixel(3 * w / 4, h / 2, w, h).unwrap();
+        assert!((d - DVec3::X).length() < 0.1, "{d}");
+        let (d, _) = p.pixel(0, 0, w, h).unwrap();
+        assert!(d.y > 0.99, "{d}");
+        let total: f64 = (0..h)
+            .flat_map(|j| (0..w).map(move |i| (i, j)))
+            .map(|(i, j)| p.pixel(i, j, w, h).unwrap().1)
+            .sum();
+        assert!((total - 4.0 * PI).abs() < 1e-12, "{total}");
+    }
+
+    #[test]
+    fn fisheye_conventions_and_solid_angle() {
+        for lens in [Lens::Equidistant, Lens::Equisolid] {
+            let p = Projection::Fisheye {
+                lens,
+                fov_deg: 180.0,
+                centre: None,
+                radius: None,
+            };
+            let (w, h) = (640, 480);
+            // Top of the circle is −Z, right is +X, the centre the zenith.
+            let (d, _) = p.pixel(320, 1, w, h).unwrap();
+            assert!((d - DVec3::NEG_Z).length() < 0.02, "{d}");
+            let (d, _) = p.pixel(558, 240, w, h).unwrap();
+            assert!((d - DVec3::X).length() < 0.02, "{d}");
+            let (d, _) = p.pixel(320, 240, w, h).unwrap();
+            assert!(d.y > 0.9999, "{d}");
+            assert!(p.pixel(0, 0, w, h).is_none());
+            let total: f64 = (0..h)
+                .flat_map(|j| (0..w).map(move |i| (i, j)))
+                .filter_map(|(i, j)| p.pixel(i, j, w, h))
+                .map(|(_, sr)| sr)
+                .sum();
+            // The image circle covers the hemisphere: 2π, up to the pixelated rim.
+            assert!((total / (2.0 * PI) - 1.0).abs() < 5e-3, "{lens:?}: {total}");
+        }
+    }
+
+    #[test]
+    fn sanitize_counts_and_clamps() {
+        let mut px = vec![
+            [1.0, 2.0, 3.0],
+            [f32::NAN, 1.0, 1.0],
+            [-1.0, 1.0, 1.0],
+            [f32::INFINITY, -2.0, 0.0],
+        ];
+        let r = sanitize(&mut px);
+        assert_eq!(r.non_finite_pixels, 2);
+        assert_eq!(r.negative_pixels, 2);
+        assert!(px.iter().flatten().all(|c| c.is_finite() && *c >= 0.0));
+        assert_eq!(px[0], [1.0, 2.0, 3.0]);
+    }
+
+    #[test]
+    fn rejects_non_images() {
+        assert!(matches!(
+            EnvMap::decode(b"GIF89a....", None, DEFAULT_MAX_PIXELS),
+            Err(InputError::UnsupportedFormat(_))
+        ));
+        assert!(matches!(
+            EnvMap::decode(b"", None, DEFAULT_MAX_PIXELS),
+            Err(InputError::UnsupportedFormat(_))
+        ));
+    }
+}

@@ -1,0 +1,10 @@
+//! vemlight: HDR video environment maps → small, temporally stable sets of directional lights.
+//!
+//! Stages (DESIGN.md): [`envmap`] decodes and projects, [`sampling`] resamples into the equal-area
+//! domain and warps the fixed progressive points, [`lights`] computes light power and direction,
+//! [`lightset`] is the wire document.
+
+pub mod envmap;
+pub mod lights;
+pub mod lightset;
+pub mod sampling;

@@ -1,0 +1,491 @@
+//! Light power and direction: a domain image → a set of directional lights.
+//!
+//! Input: an [`EnvMap`] (resampled here into the equal-area [`DomainImage`]). Output: [`Light`]s whose
+//! irradiance sums exactly to ∫L dω over the domain (DESIGN.md), plus the L2 SH and the primary light.
+//! Methods (ALGORITHMS.md §4, §7):
+//! - [`Method::Voronoi`] (default): lights seeded at the warped progressive points, every texel's
+//!   energy given to the nearest light on the sphere, each light moved to its cell's
+//!   luminance-weighted centroid;
+//! - [`Method::Paper`]: lights at the warped points, energy from the Voronoi cells of the fixed
+//!   points in the unit square (HSKMS05 as described);
+//! - [`Method::MedianCut`]: Debevec 2005 on a lat-long map, the baseline.
+
+pub mod error;
+pub mod median_cut;
+pub mod sh;
+
+use crate::envmap::EnvMap;
+use crate::sampling::pointset::voronoi_raster;
+use crate::sampling::{Distribution2D, Domain, DomainImage, N_MAX, Resampler, progressive_points};
+use glam::{DVec3, Vec3};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::time::Instant;
+
+/// A directional light (DESIGN.md "A light").
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Light {
+    /// Stable id: the index of the progressive point the light comes from (ordered methods).
+    pub id: u32,
+    /// Unit vector pointing toward the light, world frame (+Y up, −Z forward).
+    pub to_light: [f32; 3],
+    /// Radiance integrated over the light's solid angle, linear RGB (map units × sr).
+    pub irradiance: [f32; 3],
+    /// Solid angle (sr) of the region the light stands for.
+    pub solid_angle: f32,
+}
+
+impl Light {
+    pub fn dir(&self) -> DVec3 {
+        DVec3::from_array(self.to_light.map(f64::from))
+    }
+
+    pub fn luminance(&self) -> f64 {
+        crate::envmap::luminance64(self.irradiance.map(f64::from))
+    }
+}
+
+/// How lights are computed from a map.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// Spherical Voronoi cells around the warped progressive points (our default, ALGORITHMS.md §4).
+    #[default]
+    Voronoi,
+    /// The paper's variant: Voronoi cells of the fixed points in the warped unit square.
+    Paper,
+    /// Debevec's median cut on a lat-long map (baseline, ALGORITHMS.md §7).
+    MedianCut,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Voronoi => "voronoi",
+            Method::Paper => "paper",
+            Method::MedianCut => "median-cut",
+        }
+    }
+
+    /// Whether light id k is the same progressive point in every frame.
+    pub fn ids_are_stable(self) -> bool {
+        !matches!(self, Method::MedianCut)
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "voronoi" | "default" => Ok(Method::Voronoi),
+            "paper" => Ok(Method::Paper),
+            "median-cut" | "mediancut" => Ok(Method::MedianCut),
+            _ => Err(format!(
+                "unknown method '{s}' (expected voronoi, paper or median-cut)"
+            )),
+        }
+    }
+}
+
+/// What to extract.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExtractOptions {
+    pub lights: usize,
+    pub domain: Domain,
+    pub method: Method,
+    /// Side of the domain square; `None` = chosen from the source resolution.
+    pub side: Option<usize>,
+}
+
+/// The result of one extraction, before it is wrapped into a LightSet document.
+#[derive(Clone, Debug)]
+pub struct Extraction {
+    pub lights: Vec<Light>,
+    /// ∫ L dω over the domain (equals Σ irradiance).
+    pub total: [f64; 3],
+    pub side: usize,
+    pub timings: StageTimings,
+}
+
+/// Wall-clock time of each stage, in seconds.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct StageTimings {
+    pub resample_s: f64,
+    pub warp_s: f64,
+    pub assign_s: f64,
+}
+
+/// Turns maps into lights, keeping every table and buffer between frames so that a video stream of
+/// same-sized maps allocates nothing per frame in the hot loop.
+#[derive(Default)]
+pub struct Extractor {
+    resampler: Option<Resampler>,
+    image: Option<DomainImage>,
+    dist: Distribution2D,
+    texel_dirs: Option<TexelDirections>,
+    grid: Option<CandidateGrid>,
+    paper_cells: HashMap<usize, Vec<u16>>,
+    seeds: Vec<Vec3>,
+    accum: Vec<CellAccum>,
+    median_cut: median_cut::MedianCut,
+}
+
+/// Per-light sums over its cell.
+#[derive(Clone, Copy, Debug, Default)]
+struct CellAccum {
+    energy: Vec3,
+    weighted_dir: Vec3,
+    texels: u32,
+}
+
+impl Extractor {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The domain image of the last extraction (for SH, error estimates and tests).
+    pub fn domain_image(&self) -> Option<&DomainImage> {
+        self.image.as_ref()
+    }
+
+    /// Resamples `map` into the domain square (cached table), leaving it in `self.image`.
+    pub fn resample(&mut self, map: &EnvMap, domain: Domain, side: Option<usize>) -> &DomainImage {
+        if !self
+            .resampler
+            .as_ref()
+            .is_some_and(|r| r.fits(map, domain, side))
+        {
+            self.resampler = Some(Resampler::new(
+                map.projection,
+                map.width,
+                map.height,
+                domain,
+                side,
+            ));
+        }
+        let r = self.resampler.as_ref().expect("just set");
+        match &mut self.image {
+            Some(img) => r.resample_into(map, img),
+            None => self.image = Some(r.resample(map)),
+        }
+        self.image.as_ref().expect("just set")
+    }
+
+    /// Extracts lights from one map.
+    pub fn extract(&mut self, map: &EnvMap, opts: &ExtractOptions) -> Extraction {
+        let t0 = Instant::now();
+        self.resample(map, opts.domain, opts.side);
+        let resample_s = t0.elapsed().as_secs_f64();
+        let mut ex = self.extract_resampled(map, opts);
+        ex.timings.resample_s = resample_s;
+        ex
+    }
+
+    /// Extracts lights from the domain image left by [`resample`](Self::resample).
+    pub fn extract_resampled(&mut self, map: &EnvMap, opts: &ExtractOptions) -> Extraction {
+        let n = opts.lights.clamp(1, N_MAX);
+        let image = self.image.take().expect("resample() first");
+        let total = image.integral();
+        let side = image.side;
+        let mut timings = StageTimings::default();
+        let lights = match opts.method {
+            Method::MedianCut => {
+                let t = Instant::now();
+                let l = self.median_cut.lights(map, &image, n);
+                timings.assign_s = t.elapsed().as_secs_f64();
+                l
+            }
+            Method::Voronoi | Method::Paper => {
+                let t = Instant::now();
+                self.warp_seeds(&image, n);
+                timings.warp_s = t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let l = if opts.method == Method::Voronoi {
+                    self.assign_spherical(&image)
+                } else {
+                    self.assign_paper(&image)
+                };
+                timings.assign_s = t.elapsed().as_secs_f64();
+                l
+            }
+        };
+        self.image = Some(image);
+        Extraction {
+            lights,
+            total,
+            side,
+            timings,
+        }
+    }
+
+    /// Builds the continuous warp over the luminance and pushes the first `n` progressive points
+    /// through it (ALGORITHMS.md §2–3).
+    fn warp_seeds(&mut self, image: &DomainImage, n: usize) {
+        self.dist.build(&image.luminance, image.side, image.side);
+        let points = &progressive_points()[..n];
+        self.seeds.clear();
+        self.seeds.extend(
+            points
+                .iter()
+                .map(|&p| image.domain.square_to_dir(self.dist.sample(p)).as_vec3()),
+        );
+    }
+
+    /// Default method: spherical Voronoi cells of the seeds, lights at luminance-weighted centroids.
+    fn assign_spherical(&mut self, image: &DomainImage) -> Vec<Light> {
+        let side = image.side;
+        if !self
+            .texel_dirs
+            .as_ref()
+            .is_some_and(|t| t.domain == image.domain && t.side == side)
+        {
+            self.texel_dirs = Some(TexelDirections::new(image.domain, side));
+            self.grid = None;
+        }
+        let dirs = self.texel_dirs.as_ref().expect("just set");
+        let grid = self
+            .grid
+            .get_or_insert_with(|| CandidateGrid::new(dirs, side));
+        grid.fill_candidates(&self.seeds);
+
+        self.accum.clear();
+        self.accum.resize(self.seeds.len(), CellAccum::default());
+        for (cell, texels) in grid.cells.iter().enumerate() {
+            let cands = grid.candidates(cell);
+            for &t in texels {
+                let d = dirs.dirs[t as usize];
+                // Nearest on the sphere = largest dot product.
+                let mut best = cands[0];
+                let mut best_dot = d.dot(self.seeds[best as usize]);
+                for &k in &cands[1..] {
+                    let dot = d.dot(self.seeds[k as usize]);
+                    if dot > best_dot {
+                        best_dot = dot;
+                        best = k;
+                    }
+                }
+                let a = &mut self.accum[best as usize];
+                let l = Vec3::from_array(image.radiance[t as usize]);
+                a.energy += l;
+                a.weighted_dir += d * image.luminance[t as usize];
+                a.texels += 1;
+            }
+        }
+        let texel_sr = image.texel_solid_angle() as f32;
+        self.accum
+            .iter()
+            .zip(&self.seeds)
+            .enumerate()
+            .map(|(k, (a, &seed))| {
+                // Move to the luminance-weighted centroid; a dark or empty cell keeps its seed.
+                let dir = a.weighted_dir.try_normalize().unwrap_or(seed);
+                make_light(k, dir, a.energy * texel_sr, a.texels as f32 * texel_sr)
+            })
+            .collect()
+    }
+
+    /// Paper variant: texel → T(texel) in the unit square → the fixed point whose planar Voronoi cell
+    /// contains it; the light stays at its warped point (ALGORITHMS.md §4 "paper").
+    fn assign_paper(&mut self, image: &DomainImage) -> Vec<Light> {
+        let n = self.seeds.len();
+        let cells = self
+            .paper_cells
+            .entry(n)
+            .or_insert_with(|| voronoi_raster(&progressive_points()[..n], PAPER_GRID));
+        let side = image.side;
+        self.accum.clear();
+        self.accum.resize(n, CellAccum::default());
+        for j in 0..side {
+            for i in 0..side {
+                let t = j * side + i;
+                let p = self.dist.forward(DomainImage::texel_centre(side, i, j));
+                let gi = ((p.x * PAPER_GRID as f64) as usize).min(PAPER_GRID - 1);
+                let gj = ((p.y * PAPER_GRID as f64) as usize).min(PAPER_GRID - 1);
+                let k = cells[gj * PAPER_GRID + gi] as usize;
+                let a = &mut self.accum[k];
+                a.energy += Vec3::from_array(image.radiance[t]);
+                a.texels += 1;
+            }
+        }
+        let texel_sr = image.texel_solid_angle() as f32;
+        self.accum
+            .iter()
+            .zip(&self.seeds)
+            .enumerate()
+            .map(|(k, (a, &seed))| {
+                make_light(k, seed, a.energy * texel_sr, a.texels as f32 * texel_sr)
+            })
+            .collect()
+    }
+}
+
+fn make_light(id: usize, dir: Vec3, irradiance: Vec3, solid_angle: f32) -> Light {
+    Light {
+        id: id as u32,
+        to_light: dir.normalize_or(Vec3::Y).to_array(),
+        irradiance: irradiance.to_array(),
+        solid_angle,
+    }
+}
+
+/// Resolution of the cell-id grid of the paper variant's planar Voronoi diagram.
+const PAPER_GRID: usize = 512;
+
+/// World direction of every texel centre of a domain square.
+struct TexelDirections {
+    domain: Domain,
+    side: usize,
+    dirs: Vec<Vec3>,
+}
+
+impl TexelDirections {
+    fn new(domain: Domain, side: usize) -> Self {
+        let mut dirs = Vec::with_capacity(side * side);
+        for j in 0..side {
+            for i in 0..side {
+                dirs.push(
+                    domain
+                        .square_to_dir(DomainImage::texel_centre(side, i, j))
+                        .as_vec3(),
+                );
+            }
+        }
+        TexelDirections { domain, side, dirs }
+    }
+}
+
+/// Texels of the domain square gathered into coarse cells, each with a bounding cap on the sphere,
+/// and per frame the lights that can be nearest to some texel of each cell.
+///
+/// With c the cell's centre direction, ρ its cap radius and a_min the angle from c to the nearest
+/// light, any light nearest to a texel of the cell is within a_min + 2ρ of c (triangle inequality),
+/// so the texel loop only looks at those.
+struct CandidateGrid {
+    /// Texel indices of each cell.
+    cells: Vec<Vec<u32>>,
+    centres: Vec<Vec3>,
+    /// Cap radius ρ of each cell, radians.
+    radii: Vec<f32>,
+    /// Candidate light ids, all cells concatenated; `starts[c]..starts[c+1]` is cell c's slice.
+    candidates: Vec<u16>,
+    starts: Vec<usize>,
+}
+
+/// Texels per side of a coarse cell.
+const CELL_TEXELS: usize = 8;
+
+impl CandidateGrid {
+    fn new(dirs: &TexelDirections, side: usize) -> Self {
+        let g = side.div_ceil(CELL_TEXELS);
+        let mut cells = vec![Vec::new(); g * g];
+        for j in 0..side {
+            for i in 0..side {
+                cells[(j / CELL_TEXELS) * g + i / CELL_TEXELS].push((j * side + i) as u32);
+            }
+        }
+        let mut centres = Vec::with_capacity(g * g);
+        let mut radii = Vec::with_capacity(g * g);
+        for texels in &cells {
+            let sum: Vec3 = texels.iter().map(|&t| dirs.dirs[t as usize]).sum();
+            let c = sum.try_normalize().unwrap_or(dirs.dirs[texels[0] as usize]);
+            let min_dot = texels
+                .iter()
+                .map(|&t| c.dot(dirs.dirs[t as usize]))
+                .fold(1.0f32, f32::min);
+            // Pad by a texel's worth of float error so the bound stays conservative.
+            let rho = min_dot.clamp(-1.0, 1.0).acos() + 1e-4;
+            centres.push(c);
+            radii.push(rho);
+        }
+        CandidateGrid {
+            cells,
+            centres,
+            radii,
+            candidates: Vec::new(),
+            starts: Vec::new(),
+        }
+    }
+
+    fn fill_candidates(&mut self, seeds: &[Vec3]) {
+        self.candidates.clear();
+        self.starts.clear();
+        self.starts.push(0);
+        for (c, &centre) in self.centres.iter().enumerate() {
+            let best_dot = seeds
+                .iter()
+                .map(|s| centre.dot(*s))
+                .fold(f32::NEG_INFINITY, f32::max);
+            let a_min = best_dot.clamp(-1.0, 1.0).acos();
+            let limit = a_min + 2.0 * self.radii[c];
+            let start = self.candidates.len();
+            if limit >= std::f32::consts::PI {
+                self.candidates.extend(0..seeds.len() as u16);
+            } else {
+                let cos_limit = limit.cos() - 1e-6;
+                self.candidates.extend(
+                    seeds
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, s)| centre.dot(**s) >= cos_limit)
+                        .map(|(k, _)| k as u16),
+                );
+            }
+            debug_assert!(self.candidates.len() > start, "a cell with no candidate light");
+            self.starts.push(self.candidates.len());
+        }
+    }
+
+    fn candidates(&self, cell: usize) -> &[u16] {
+        &self.candidates[self.starts[cell]..self.starts[cell + 1]]
+    }
+}
+
+/// The strongest light or tight cluster of lights (the sun), WebXR's "primary light".
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PrimaryLight {
+    /// Irradiance-weighted mean direction toward the cluster (unit vector).
+    pub to_light: [f32; 3],
+    /// Sum of the cluster's irradiance, linear RGB.
+    pub irradiance: [f32; 3],
+    /// Ids of the lights in the cluster.
+    pub light_ids: Vec<u32>,
+}
+
+/// Lights within this angle of the brightest light form the primary cluster (ALGORITHMS.md §6: 2–5°).
+pub const PRIMARY_CLUSTER_DEG: f64 = 5.0;
+
+/// The brightest light (by luminance) and every light within [`PRIMARY_CLUSTER_DEG`] of it.
+pub fn primary_light(lights: &[Light]) -> Option<PrimaryLight> {
+    let brightest = lights
+        .iter()
+        .filter(|l| l.luminance() > 0.0)
+        .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))?;
+    let axis = brightest.dir();
+    let cos_limit = PRIMARY_CLUSTER_DEG.to_radians().cos();
+    let mut dir = DVec3::ZERO;
+    let mut irr = [0.0f64; 3];
+    let mut ids = Vec::new();
+    for l in lights.iter().filter(|l| l.dir().dot(axis) >= cos_limit) {
+        dir += l.dir() * l.luminance();
+        for c in 0..3 {
+            irr[c] += l.irradiance[c] as f64;
+        }
+        ids.push(l.id);
+    }
+    Some(PrimaryLight {
+        to_light: dir.try_normalize().unwrap_or(axis).as_vec3().to_array(),
+        irradiance: irr.map(|v| v as f32),
+        light_ids: ids,
+    })
+}
+
+/// Σ irradiance over lights, per channel, in f64.
+pub fn total_irradiance(lights: &[Light]) -> [f64; 3] {
+    let mut s = [0.0f64; 3];
+    for l in lights {
+        for c in 0..3 {
+            s[c] += l.irradiance[c] as f64;
+        }
+    }
+    s
+}
