@@ -267,7 +267,7 @@ impl Extractor {
                 let a = &mut self.accum[best as usize];
                 let l = Vec3::from_array(image.radiance[t as usize]);
                 a.energy += l;
-                a.weighted_dir += d * image.luminance[t as usize];
+                a.weighted_dir += Vec3::from_array(image.moment[t as usize]);
                 a.texels += 1;
             }
         }

@@ -28,6 +28,10 @@ pub struct DomainImage {
     pub radiance: Vec<[f32; 3]>,
     /// Luminance per texel (the sampling density).
     pub luminance: Vec<f32>,
+    /// Σ luminance·direction over the source pixels that fell in each texel (weighted like the
+    /// radiance): the first moment, so a light can be centred on a sub-texel source like the sun
+    /// instead of on texel centres.
+    pub moment: Vec<[f32; 3]>,
 }
 
 impl DomainImage {
@@ -64,12 +68,19 @@ impl DomainImage {
                 radiance.push(f(domain.square_to_dir(Self::texel_centre(side, i, j))));
             }
         }
-        let luminance = radiance.iter().map(|&p| EnvMap::luminance(p)).collect();
+        let luminance: Vec<f32> = radiance.iter().map(|&p| EnvMap::luminance(p)).collect();
+        let moment = (0..side * side)
+            .map(|t| {
+                let d = domain.square_to_dir(Self::texel_centre(side, t % side, t / side));
+                (d.as_vec3() * luminance[t]).to_array()
+            })
+            .collect();
         DomainImage {
             domain,
             side,
             radiance,
             luminance,
+            moment,
         }
     }
 }
@@ -106,9 +117,19 @@ pub struct Resampler {
     pub height: usize,
     pub domain: Domain,
     pub side: usize,
-    /// Per source pixel: the texel index it lands in (`u32::MAX` = outside the domain) and its
-    /// weight, the pixel's solid angle over the texel's (so texel radiance = Σ weight·L).
-    table: Vec<(u32, f32)>,
+    /// One entry per source pixel.
+    table: Vec<PixelEntry>,
+}
+
+/// Where one source pixel goes.
+#[derive(Clone, Copy, Debug)]
+struct PixelEntry {
+    /// Texel index it lands in; `u32::MAX` = outside the domain.
+    texel: u32,
+    /// The pixel's solid angle over the texel's, so texel radiance = Σ weight·L.
+    weight: f32,
+    /// The pixel's direction.
+    dir: [f32; 3],
 }
 
 impl Resampler {
@@ -131,9 +152,17 @@ impl Resampler {
                         let uv = domain.dir_to_square(dir)?;
                         let ti = ((uv.x * side as f64) as usize).min(side - 1);
                         let tj = ((uv.y * side as f64) as usize).min(side - 1);
-                        Some(((tj * side + ti) as u32, (sr / texel_sr) as f32))
+                        Some(PixelEntry {
+                            texel: (tj * side + ti) as u32,
+                            weight: (sr / texel_sr) as f32,
+                            dir: dir.as_vec3().to_array(),
+                        })
                     })
-                    .unwrap_or((u32::MAX, 0.0));
+                    .unwrap_or(PixelEntry {
+                        texel: u32::MAX,
+                        weight: 0.0,
+                        dir: [0.0; 3],
+                    });
                 table.push(entry);
             }
         }
@@ -164,13 +193,17 @@ impl Resampler {
         out.side = self.side;
         out.radiance.clear();
         out.radiance.resize(n, [0.0; 3]);
-        // Accumulate in f32 RGB (a Vec3 add per pixel): energy is exact up to f32 rounding.
-        let acc: &mut [[f32; 3]] = &mut out.radiance;
-        for (&(t, w), p) in self.table.iter().zip(&map.pixels) {
-            if t != u32::MAX {
-                let a = &mut acc[t as usize];
-                let v = Vec3::from_array(*a) + Vec3::from_array(*p) * w;
-                *a = v.to_array();
+        out.moment.clear();
+        out.moment.resize(n, [0.0; 3]);
+        // Accumulate in f32 (a Vec3 multiply-add per pixel): energy is exact up to f32 rounding.
+        for (e, p) in self.table.iter().zip(&map.pixels) {
+            if e.texel != u32::MAX {
+                let t = e.texel as usize;
+                let l = Vec3::from_array(*p) * e.weight;
+                out.radiance[t] = (Vec3::from_array(out.radiance[t]) + l).to_array();
+                let y = EnvMap::luminance(l.to_array());
+                out.moment[t] =
+                    (Vec3::from_array(out.moment[t]) + Vec3::from_array(e.dir) * y).to_array();
             }
         }
         out.luminance.clear();
@@ -185,6 +218,7 @@ impl Resampler {
             side: self.side,
             radiance: Vec::new(),
             luminance: Vec::new(),
+            moment: Vec::new(),
         };
         self.resample_into(map, &mut out);
         out
