@@ -20,7 +20,10 @@ pub enum InputError {
     #[error("image of {width}×{height} pixels exceeds the limit of {limit} pixels")]
     TooLarge { width: u64, height: u64, limit: u64 },
     #[error("cannot decode {format} image: {reason}")]
-    Corrupt { format: &'static str, reason: String },
+    Corrupt {
+        format: &'static str,
+        reason: String,
+    },
     #[error("{0}")]
     Unusable(String),
 }
@@ -182,7 +185,11 @@ impl Projection {
                 };
                 let st = theta.sin();
                 // Image right → +X, image down → +Z (image top is −Z).
-                let (ax, az) = if r > 0.0 { (dx / r, dy / r) } else { (0.0, 0.0) };
+                let (ax, az) = if r > 0.0 {
+                    (dx / r, dy / r)
+                } else {
+                    (0.0, 0.0)
+                };
                 let dir = DVec3::new(st * ax, theta.cos(), st * az);
                 // dω = sin θ dθ dφ and dA = r dr dφ, so dω/dA = sin θ · θ'(r) / r; at r → 0,
                 // sin θ / r → θ'(0). Pixel area is 1/radius² in these units.
@@ -252,6 +259,9 @@ impl EnvMap {
     ) -> Result<Self, InputError> {
         let (format, name) = sniff(bytes)?;
         // Read the header first and refuse oversized images before any pixel buffer exists.
+        if format == image::ImageFormat::OpenExr {
+            check_exr_header(bytes, max_pixels)?;
+        }
         let dims = image::ImageReader::with_format(Cursor::new(bytes), format)
             .into_dimensions()
             .map_err(|e| corrupt(name, e))?;
@@ -289,6 +299,79 @@ impl EnvMap {
             .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
         Self::decode(&bytes, projection, max_pixels)
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    }
+
+    /// The radiance this map sees along a world direction (nearest pixel); 0 outside a fisheye's
+    /// circle or below a hemisphere square.
+    pub fn radiance_along(&self, dir: DVec3) -> [f32; 3] {
+        let (w, h) = (self.width as f64, self.height as f64);
+        let pixel = match self.projection {
+            Projection::LatLong => {
+                let theta = dir.y.clamp(-1.0, 1.0).acos();
+                let phi = dir.x.atan2(-dir.z);
+                let u = phi / (2.0 * PI) + 0.5;
+                Some(((u * w) as i64, (theta / PI * h) as i64))
+            }
+            Projection::HemisphereSquare => crate::sampling::Domain::Upper
+                .dir_to_square(dir)
+                .map(|uv| ((uv.x * w) as i64, (uv.y * h) as i64)),
+            Projection::Fisheye {
+                lens,
+                fov_deg,
+                centre,
+                radius,
+            } => {
+                let (cx, cy) = centre.unwrap_or((w * 0.5, h * 0.5));
+                let radius = radius.unwrap_or(0.5 * w.min(h));
+                let theta = dir.y.clamp(-1.0, 1.0).acos();
+                let theta_max = 0.5 * fov_deg.to_radians();
+                let r = match lens {
+                    Lens::Equidistant => theta / theta_max,
+                    Lens::Equisolid => (0.5 * theta).sin() / (0.5 * theta_max).sin(),
+                };
+                let horizontal = (dir.x * dir.x + dir.z * dir.z).sqrt();
+                let (ax, az) = if horizontal > 0.0 {
+                    (dir.x / horizontal, dir.z / horizontal)
+                } else {
+                    (0.0, 0.0)
+                };
+                (r <= 1.0).then(|| {
+                    (
+                        (cx + r * ax * radius).floor() as i64,
+                        (cy + r * az * radius).floor() as i64,
+                    )
+                })
+            }
+        };
+        match pixel {
+            Some((i, j)) => {
+                let i = i.clamp(0, self.width as i64 - 1) as usize;
+                let j = j.clamp(0, self.height as i64 - 1) as usize;
+                self.pixels[j * self.width + i]
+            }
+            None => [0.0; 3],
+        }
+    }
+
+    /// This map seen through another projection (nearest-pixel lookup), e.g. a real lat-long map
+    /// as a fisheye camera would see it; pixels outside the new image circle are 0.
+    pub fn reproject(&self, projection: Projection, width: usize, height: usize) -> Self {
+        let mut pixels = Vec::with_capacity(width * height);
+        for j in 0..height {
+            for i in 0..width {
+                pixels.push(match projection.pixel(i, j, width, height) {
+                    Some((dir, _)) => self.radiance_along(dir),
+                    None => [0.0; 3],
+                });
+            }
+        }
+        EnvMap {
+            width,
+            height,
+            pixels,
+            projection,
+            repairs: self.repairs,
+        }
     }
 
     /// Luminance (Rec. 709 / sRGB primaries) of a linear RGB triple.
@@ -340,6 +423,29 @@ pub fn sanitize(pixels: &mut [[f32; 3]]) -> InputRepairs {
         }
     }
     r
+}
+
+/// Reads only the OpenEXR headers (no offset tables, no pixels) and refuses any layer larger than
+/// `max_pixels`, before a decoder sizes its buffers from a header that may lie.
+fn check_exr_header(bytes: &[u8], max_pixels: u64) -> Result<(), InputError> {
+    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(|e| {
+        InputError::Corrupt {
+            format: "OpenEXR",
+            reason: e.to_string(),
+        }
+    })?;
+    for header in &meta.headers {
+        let size = header.layer_size;
+        let (width, height) = (size.width() as u64, size.height() as u64);
+        if width.saturating_mul(height) > max_pixels {
+            return Err(InputError::TooLarge {
+                width,
+                height,
+                limit: max_pixels,
+            });
+        }
+    }
+    Ok(())
 }
 
 fn corrupt(format: &'static str, e: image::ImageError) -> InputError {
@@ -416,6 +522,33 @@ mod tests {
                 .sum();
             // The image circle covers the hemisphere: 2π, up to the pixelated rim.
             assert!((total / (2.0 * PI) - 1.0).abs() < 5e-3, "{lens:?}: {total}");
+        }
+    }
+
+    #[test]
+    fn radiance_along_inverts_pixel_directions() {
+        let fisheye = Projection::Fisheye {
+            lens: Lens::Equisolid,
+            fov_deg: 185.0,
+            centre: Some((50.0, 40.0)),
+            radius: Some(38.0),
+        };
+        for (proj, w, h) in [
+            (Projection::LatLong, 64, 32),
+            (fisheye, 100, 80),
+            (Projection::HemisphereSquare, 32, 32),
+        ] {
+            // Each pixel holds its own index; looking along its direction must find it.
+            let px: Vec<[f32; 3]> = (0..w * h).map(|k| [k as f32, 0.0, 0.0]).collect();
+            let map = EnvMap::from_pixels(w, h, px, proj).unwrap();
+            for j in 0..h {
+                for i in 0..w {
+                    if let Some((d, _)) = proj.pixel(i, j, w, h) {
+                        let got = map.radiance_along(d)[0] as usize;
+                        assert_eq!(got, j * w + i, "{proj:?} pixel ({i},{j}) -> {d}");
+                    }
+                }
+            }
         }
     }
 

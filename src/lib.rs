@@ -4,7 +4,11 @@
 //! domain and warps the fixed progressive points, [`lights`] computes light power and direction,
 //! [`lightset`] is the wire document.
 
+// Loops over RGB channels and SIMD lanes read more clearly with an index.
+#![allow(clippy::needless_range_loop)]
+
 pub mod envmap;
+pub mod eval;
 pub mod lights;
 pub mod lightset;
 pub mod sampling;

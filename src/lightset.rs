@@ -150,7 +150,9 @@ pub fn lightset_for_map(
     source: &str,
 ) -> LightSet {
     let start = Instant::now();
-    let domain = req.domain.unwrap_or_else(|| default_domain(&map.projection));
+    let domain = req
+        .domain
+        .unwrap_or_else(|| default_domain(&map.projection));
     let t = Instant::now();
     extractor.resample(map, domain, None);
     let resample_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -248,7 +250,10 @@ pub fn to_gltf(set: &LightSet) -> serde_json::Value {
             "intensity": peak,
         }));
         let travel = -glam::Vec3::from_array(l.to_light);
-        let q = glam::Quat::from_rotation_arc(glam::Vec3::NEG_Z, travel.normalize_or(glam::Vec3::NEG_Y));
+        let q = glam::Quat::from_rotation_arc(
+            glam::Vec3::NEG_Z,
+            travel.normalize_or(glam::Vec3::NEG_Y),
+        );
         nodes.push(json!({
             "name": format!("vemlight-{}", l.id),
             "rotation": q.to_array(),

@@ -11,7 +11,11 @@ use vemlight::lightset::{LightRequest, lightset_for_map, to_gltf};
 use vemlight::sampling::Domain;
 
 #[derive(Parser)]
-#[command(name = "vemlight", version, about = "Directional lights from HDR environment maps")]
+#[command(
+    name = "vemlight",
+    version,
+    about = "Directional lights from HDR environment maps"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -21,6 +25,23 @@ struct Cli {
 enum Command {
     /// One environment map (OpenEXR or Radiance HDR) → a LightSet on stdout.
     Lights(LightsArgs),
+    /// Per-frame extraction speed of every method (single thread, decoding excluded), as medians
+    /// and ratios to median cut measured in the same run.
+    Bench(BenchArgs),
+}
+
+#[derive(clap::Args)]
+struct BenchArgs {
+    /// A lat-long map; the fisheye case sees it through a 180° equidistant lens.
+    #[arg(long, default_value = "tests/data/sunrise.exr")]
+    map: PathBuf,
+    #[arg(long, default_value_t = 256)]
+    lights: usize,
+    /// Interleaved rounds; each times every case `--per-round` times.
+    #[arg(long, default_value_t = 15)]
+    rounds: usize,
+    #[arg(long, default_value_t = 20)]
+    per_round: usize,
 }
 
 #[derive(clap::Args)]
@@ -85,6 +106,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Lights(args) => run_lights(args),
+        Command::Bench(args) => run_bench(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -135,6 +157,40 @@ fn run_lights(args: LightsArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `vemlight bench`.
+fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
+    use vemlight::eval::speed;
+    let bytes =
+        std::fs::read(&args.map).with_context(|| format!("cannot read {}", args.map.display()))?;
+    let map = EnvMap::decode(&bytes, Some(Projection::LatLong), DEFAULT_MAX_PIXELS)
+        .with_context(|| args.map.display().to_string())?;
+    let decode = speed::decode_median(&bytes, 21);
+    println!(
+        "decode {} ({}x{}): median {:.2} ms",
+        args.map.display(),
+        map.width,
+        map.height,
+        decode * 1e3
+    );
+    let cases = speed::standard_cases(&map, args.lights);
+    println!(
+        "{:<48} {:>12} {:>10} {:>14}",
+        "case (single thread, decode excluded)", "median ms", "frames/s", "x median cut"
+    );
+    for t in speed::run(&cases, args.rounds, args.per_round) {
+        println!(
+            "{:<48} {:>12.3} {:>10.0} {:>14}",
+            t.name,
+            t.median_s * 1e3,
+            1.0 / t.median_s,
+            t.ratio_to_baseline
+                .map(|r| format!("{r:.2}"))
+                .unwrap_or_default()
+        );
+    }
+    Ok(())
+}
+
 /// Applies --fov and --circle to a fisheye projection (and refuses them for any other).
 fn fisheye_overrides(
     projection: Option<Projection>,
@@ -157,6 +213,9 @@ fn fisheye_overrides(
             centre: circle.map(|c| (c.0, c.1)).or(centre),
             radius: circle.map(|c| c.2).or(radius),
         })),
-        other => bail!("--fov and --circle apply to fisheye projections, not {}", other.name()),
+        other => bail!(
+            "--fov and --circle apply to fisheye projections, not {}",
+            other.name()
+        ),
     }
 }

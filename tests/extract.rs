@@ -32,8 +32,8 @@ fn resampling_preserves_the_integral_on_every_map() {
         let map = load(name);
         for domain in [Domain::Upper, Domain::Sphere] {
             let truth = map.integral(domain);
-            let img = Resampler::new(map.projection, map.width, map.height, domain, None)
-                .resample(&map);
+            let img =
+                Resampler::new(map.projection, map.width, map.height, domain, None).resample(&map);
             let got = img.integral();
             for c in 0..3 {
                 assert!(
@@ -70,7 +70,10 @@ fn energy_is_conserved_on_every_map_and_method() {
                     for l in &out.lights {
                         let d = l.dir();
                         assert!((d.length() - 1.0).abs() < 1e-5, "{name}: light not unit");
-                        assert!(domain.contains(d) || d.y > -1e-5, "{name}: light below horizon");
+                        assert!(
+                            domain.contains(d) || d.y > -1e-5,
+                            "{name}: light below horizon"
+                        );
                         assert!(l.irradiance.iter().all(|c| c.is_finite() && *c >= 0.0));
                     }
                     if method.ids_are_stable() {
@@ -138,14 +141,28 @@ fn default_beats_paper_variant_at_64() {
 fn hot_pixel_latlong_direction() {
     let (w, h) = (512, 256);
     let mut ex = Extractor::new();
-    for &(i, j) in &[(384, 128), (0, 100), (511, 30), (200, 250), (256, 5), (100, 140)] {
+    for &(i, j) in &[
+        (384, 128),
+        (0, 100),
+        (511, 30),
+        (200, 250),
+        (256, 5),
+        (100, 140),
+    ] {
         let mut px = vec![[0.001f32; 3]; w * h];
         px[j * w + i] = [1.0e4, 2.0e4, 3.0e4];
         let map = EnvMap::from_pixels(w, h, px, Projection::LatLong).unwrap();
         // The convention, written out independently: θ = π v, φ = 2π(u − ½).
         let (u, v) = ((i as f64 + 0.5) / w as f64, (j as f64 + 0.5) / h as f64);
-        let (theta, phi) = (std::f64::consts::PI * v, 2.0 * std::f64::consts::PI * (u - 0.5));
-        let want = DVec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos());
+        let (theta, phi) = (
+            std::f64::consts::PI * v,
+            2.0 * std::f64::consts::PI * (u - 0.5),
+        );
+        let want = DVec3::new(
+            theta.sin() * phi.sin(),
+            theta.cos(),
+            -theta.sin() * phi.cos(),
+        );
         // One texel of the lat-long map in angle (the larger of its two sides).
         let texel = std::f64::consts::PI / h as f64;
         for method in METHODS {
@@ -197,7 +214,10 @@ fn hot_pixel_fisheye_direction() {
             let map = EnvMap::from_pixels(w, h, px, proj).unwrap();
             let (dir, _) = proj.pixel(i, j, w, h).unwrap();
             // The pixel's own direction, by the projection, must be on the expected side.
-            assert!(dir.dot(want) > 0.5, "{lens:?}: pixel ({i},{j}) looks along {dir}");
+            assert!(
+                dir.dot(want) > 0.5,
+                "{lens:?}: pixel ({i},{j}) looks along {dir}"
+            );
             let out = ex.extract(&map, &opts(16, Domain::Upper, Method::Voronoi));
             let best = out
                 .lights
@@ -205,7 +225,10 @@ fn hot_pixel_fisheye_direction() {
                 .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
                 .unwrap();
             let angle = best.dir().dot(dir).clamp(-1.0, 1.0).acos().to_degrees();
-            assert!(angle < 0.4, "{lens:?} ({i},{j}): {angle}° off (a pixel is 0.375°)");
+            assert!(
+                angle < 0.4,
+                "{lens:?} ({i},{j}): {angle}° off (a pixel is 0.375°)"
+            );
         }
     }
 }
@@ -288,7 +311,10 @@ fn black_map_gives_zero_energy_and_no_nan() {
 #[test]
 fn bad_pixels_are_clamped_and_counted() {
     let map = load("cumulus-sky-f16.exr");
-    assert!(map.repairs.negative_pixels > 0, "this map has lossy negative ringing");
+    assert!(
+        map.repairs.negative_pixels > 0,
+        "this map has lossy negative ringing"
+    );
     let (w, h) = (64, 32);
     let mut px = vec![[1.0f32; 3]; w * h];
     px[5] = [f32::NAN, 1.0, 1.0];

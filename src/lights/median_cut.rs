@@ -28,6 +28,13 @@ pub struct MedianCut {
     sat: Vec<f64>,
     /// Lat-long pixels used when the source is not lat-long.
     pulled: Vec<[f32; 3]>,
+    /// For that case: the domain texel each lat-long pixel reads (`u32::MAX` = outside), and the
+    /// (domain, side) it was made for.
+    pull_table: Vec<u32>,
+    pull_key: Option<(Domain, usize)>,
+    /// Per column (sin φ, cos φ) and per row (sin θ, cos θ, Δω) of the lat-long grid.
+    columns: Vec<(f64, f64)>,
+    rows: Vec<(f64, f64, f64)>,
 }
 
 impl MedianCut {
@@ -42,21 +49,33 @@ impl MedianCut {
             // Pull a lat-long image of the domain square at about its resolution.
             let h = image.side;
             let w = 2 * h;
-            self.pulled.clear();
-            for j in 0..h {
-                for i in 0..w {
-                    let (dir, _) = Projection::LatLong.pixel(i, j, w, h).expect("lat-long");
-                    let p = domain
-                        .dir_to_square(dir)
-                        .map(|uv| {
-                            let ti = ((uv.x * h as f64) as usize).min(h - 1);
-                            let tj = ((uv.y * h as f64) as usize).min(h - 1);
-                            image.radiance[tj * h + ti]
-                        })
-                        .unwrap_or([0.0; 3]);
-                    self.pulled.push(p);
+            if self.pull_key != Some((domain, h)) {
+                self.pull_table.clear();
+                for j in 0..h {
+                    for i in 0..w {
+                        let (dir, _) = Projection::LatLong.pixel(i, j, w, h).expect("lat-long");
+                        self.pull_table.push(
+                            domain
+                                .dir_to_square(dir)
+                                .map(|uv| {
+                                    let ti = ((uv.x * h as f64) as usize).min(h - 1);
+                                    let tj = ((uv.y * h as f64) as usize).min(h - 1);
+                                    (tj * h + ti) as u32
+                                })
+                                .unwrap_or(u32::MAX),
+                        );
+                    }
                 }
+                self.pull_key = Some((domain, h));
             }
+            self.pulled.clear();
+            self.pulled.extend(self.pull_table.iter().map(|&t| {
+                if t == u32::MAX {
+                    [0.0; 3]
+                } else {
+                    image.radiance[t as usize]
+                }
+            }));
             (w, h, &self.pulled)
         };
         // Rows inside the domain: all for the sphere, the upper half (pixel centre above the
@@ -65,9 +84,19 @@ impl MedianCut {
             Domain::Sphere => h,
             Domain::Upper => h.div_ceil(2),
         };
-        let row_sr: Vec<f64> = (0..rows)
-            .map(|j| Projection::LatLong.pixel(0, j, w, h).expect("lat-long").1)
-            .collect();
+        if self.columns.len() != w || self.rows.len() != h {
+            self.columns = (0..w)
+                .map(|i| (2.0 * PI * ((i as f64 + 0.5) / w as f64 - 0.5)).sin_cos())
+                .collect();
+            self.rows = (0..h)
+                .map(|j| {
+                    let (st, ct) = (PI * (j as f64 + 0.5) / h as f64).sin_cos();
+                    let sr = Projection::LatLong.pixel(0, j, w, h).expect("lat-long").1;
+                    (st, ct, sr)
+                })
+                .collect();
+        }
+        let row_sr: Vec<f64> = self.rows.iter().map(|r| r.2).collect();
 
         // Summed-area table of luminance energy.
         self.sat.clear();
@@ -119,6 +148,7 @@ impl MedianCut {
         }
 
         // Each region's light: RGB energy and the luminance-weighted mean direction.
+        let (columns, row_trig) = (&self.columns, &self.rows);
         let mut lights: Vec<Light> = regions
             .iter()
             .enumerate()
@@ -127,15 +157,26 @@ impl MedianCut {
                 let mut dir = DVec3::ZERO;
                 let mut sr = 0.0;
                 for j in r.y0..r.y1 {
+                    // d = (sin θ sin φ, cos θ, −sin θ cos φ), DESIGN.md's lat-long convention.
+                    let (st, ct, dw) = row_trig[j];
+                    let mut row_rgb = [0.0f64; 3];
+                    let (mut sx, mut sz, mut sy) = (0.0f64, 0.0f64, 0.0f64);
                     for i in r.x0..r.x1 {
                         let p = pixels[j * w + i];
-                        let (d, _) = Projection::LatLong.pixel(i, j, w, h).expect("lat-long");
                         for c in 0..3 {
-                            rgb[c] += p[c] as f64 * row_sr[j];
+                            row_rgb[c] += p[c] as f64;
                         }
-                        dir += d * (EnvMap::luminance(p) as f64 * row_sr[j]);
-                        sr += row_sr[j];
+                        let y = EnvMap::luminance(p) as f64;
+                        let (sp, cp) = columns[i];
+                        sx += y * sp;
+                        sz -= y * cp;
+                        sy += y;
                     }
+                    for c in 0..3 {
+                        rgb[c] += row_rgb[c] * dw;
+                    }
+                    dir += DVec3::new(sx * st, sy * ct, sz * st) * dw;
+                    sr += dw * (r.x1 - r.x0) as f64;
                 }
                 let centre = || {
                     let (d, _) = Projection::LatLong
@@ -220,15 +261,9 @@ fn split(
     }
     let e_first = before(cut);
     let (first, second) = if along_x {
-        (
-            Region { x1: cut, ..r },
-            Region { x0: cut, ..r },
-        )
+        (Region { x1: cut, ..r }, Region { x0: cut, ..r })
     } else {
-        (
-            Region { y1: cut, ..r },
-            Region { y0: cut, ..r },
-        )
+        (Region { y1: cut, ..r }, Region { y0: cut, ..r })
     };
     Some((
         Region {

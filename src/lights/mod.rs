@@ -122,7 +122,6 @@ pub struct Extractor {
     resampler: Option<Resampler>,
     image: Option<DomainImage>,
     dist: Distribution2D,
-    texel_dirs: Option<TexelDirections>,
     grid: Option<CandidateGrid>,
     paper_cells: HashMap<usize, Vec<u16>>,
     seeds: Vec<Vec3>,
@@ -163,7 +162,7 @@ impl Extractor {
                 side,
             ));
         }
-        let r = self.resampler.as_ref().expect("just set");
+        let r = self.resampler.as_mut().expect("just set");
         match &mut self.image {
             Some(img) => r.resample_into(map, img),
             None => self.image = Some(r.resample(map)),
@@ -235,40 +234,51 @@ impl Extractor {
     fn assign_spherical(&mut self, image: &DomainImage) -> Vec<Light> {
         let side = image.side;
         if !self
-            .texel_dirs
-            .as_ref()
-            .is_some_and(|t| t.domain == image.domain && t.side == side)
-        {
-            self.texel_dirs = Some(TexelDirections::new(image.domain, side));
-            self.grid = None;
-        }
-        let dirs = self.texel_dirs.as_ref().expect("just set");
-        let grid = self
             .grid
-            .get_or_insert_with(|| CandidateGrid::new(dirs, side));
+            .as_ref()
+            .is_some_and(|g| g.domain == image.domain && g.side == side)
+        {
+            self.grid = Some(CandidateGrid::new(image.domain, side));
+        }
+        let grid = self.grid.as_mut().expect("just set");
         grid.fill_candidates(&self.seeds);
 
         self.accum.clear();
         self.accum.resize(self.seeds.len(), CellAccum::default());
-        for (cell, texels) in grid.cells.iter().enumerate() {
+        for cell in 0..grid.cell_count() {
             let cands = grid.candidates(cell);
-            for &t in texels {
-                let d = dirs.dirs[t as usize];
-                // Nearest on the sphere = largest dot product.
-                let mut best = cands[0];
-                let mut best_dot = d.dot(self.seeds[best as usize]);
-                for &k in &cands[1..] {
-                    let dot = d.dot(self.seeds[k as usize]);
-                    if dot > best_dot {
-                        best_dot = dot;
-                        best = k;
+            let start = grid.cell_starts[cell];
+            let end = grid.cell_starts[cell + 1];
+            // Eight texels at a time against every candidate: eight independent running maxima
+            // the compiler keeps in vector registers.
+            for block in (start..end).step_by(LANES) {
+                let (bx, by, bz) = (
+                    &grid.dx[block..block + LANES],
+                    &grid.dy[block..block + LANES],
+                    &grid.dz[block..block + LANES],
+                );
+                let mut best_dot = [f32::NEG_INFINITY; LANES];
+                let mut best = [0u16; LANES];
+                for &k in cands {
+                    let sd = self.seeds[k as usize];
+                    for l in 0..LANES {
+                        let dot = bx[l] * sd.x + by[l] * sd.y + bz[l] * sd.z;
+                        let better = dot > best_dot[l];
+                        best_dot[l] = if better { dot } else { best_dot[l] };
+                        best[l] = if better { k } else { best[l] };
                     }
                 }
-                let a = &mut self.accum[best as usize];
-                let l = Vec3::from_array(image.radiance[t as usize]);
-                a.energy += l;
-                a.weighted_dir += Vec3::from_array(image.moment[t as usize]);
-                a.texels += 1;
+                for l in 0..LANES {
+                    let t = grid.texels[block + l];
+                    if t == u32::MAX {
+                        continue; // padding
+                    }
+                    let t = t as usize;
+                    let a = &mut self.accum[best[l] as usize];
+                    a.energy += Vec3::from_array(image.radiance[t]);
+                    a.weighted_dir += Vec3::from_array(image.moment[t]);
+                    a.texels += 1;
+                }
             }
         }
         let texel_sr = image.texel_solid_angle() as f32;
@@ -331,26 +341,39 @@ fn make_light(id: usize, dir: Vec3, irradiance: Vec3, solid_angle: f32) -> Light
 /// Resolution of the cell-id grid of the paper variant's planar Voronoi diagram.
 const PAPER_GRID: usize = 512;
 
-/// World direction of every texel centre of a domain square.
-struct TexelDirections {
-    domain: Domain,
-    side: usize,
-    dirs: Vec<Vec3>,
+/// Unit vectors in structure-of-arrays form, for nearest-direction searches.
+#[derive(Default)]
+struct DirectionsSoa {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
 }
 
-impl TexelDirections {
-    fn new(domain: Domain, side: usize) -> Self {
-        let mut dirs = Vec::with_capacity(side * side);
-        for j in 0..side {
-            for i in 0..side {
-                dirs.push(
-                    domain
-                        .square_to_dir(DomainImage::texel_centre(side, i, j))
-                        .as_vec3(),
-                );
-            }
+impl DirectionsSoa {
+    fn clear(&mut self) {
+        self.x.clear();
+        self.y.clear();
+        self.z.clear();
+    }
+
+    fn extend(&mut self, dirs: impl Iterator<Item = Vec3>) {
+        for d in dirs {
+            self.x.push(d.x);
+            self.y.push(d.y);
+            self.z.push(d.z);
         }
-        TexelDirections { domain, side, dirs }
+    }
+
+    /// Dot products of every direction with `d`, into `out`.
+    fn dots(&self, d: Vec3, out: &mut Vec<f32>) {
+        out.clear();
+        out.extend(
+            self.x
+                .iter()
+                .zip(&self.y)
+                .zip(&self.z)
+                .map(|((x, y), z)| d.x * x + d.y * y + d.z * z),
+        );
     }
 }
 
@@ -361,76 +384,109 @@ impl TexelDirections {
 /// light, any light nearest to a texel of the cell is within a_min + 2ρ of c (triangle inequality),
 /// so the texel loop only looks at those.
 struct CandidateGrid {
-    /// Texel indices of each cell.
-    cells: Vec<Vec<u32>>,
+    domain: Domain,
+    side: usize,
+    /// Texel indices, cell by cell, each cell padded with `u32::MAX` to a multiple of [`LANES`];
+    /// `cell_starts[c]..cell_starts[c+1]` is cell c.
+    texels: Vec<u32>,
+    /// Texel directions in the same order as `texels` (structure of arrays; padding is +Y).
+    dx: Vec<f32>,
+    dy: Vec<f32>,
+    dz: Vec<f32>,
+    cell_starts: Vec<usize>,
     centres: Vec<Vec3>,
     /// Cap radius ρ of each cell, radians.
     radii: Vec<f32>,
     /// Candidate light ids, all cells concatenated; `starts[c]..starts[c+1]` is cell c's slice.
     candidates: Vec<u16>,
     starts: Vec<usize>,
+    /// Seeds in SoA form and a dot-product buffer, reused every frame.
+    seeds: DirectionsSoa,
+    dots: Vec<f32>,
 }
 
 /// Texels per side of a coarse cell.
 const CELL_TEXELS: usize = 8;
+/// Texels searched together in the assignment loop.
+const LANES: usize = 8;
 
 impl CandidateGrid {
-    fn new(dirs: &TexelDirections, side: usize) -> Self {
+    fn new(domain: Domain, side: usize) -> Self {
         let g = side.div_ceil(CELL_TEXELS);
-        let mut cells = vec![Vec::new(); g * g];
-        for j in 0..side {
-            for i in 0..side {
-                cells[(j / CELL_TEXELS) * g + i / CELL_TEXELS].push((j * side + i) as u32);
-            }
-        }
+        let mut texels = Vec::with_capacity(side * side);
+        let mut dirs: Vec<Vec3> = Vec::with_capacity(side * side);
+        let mut cell_starts = vec![0];
         let mut centres = Vec::with_capacity(g * g);
         let mut radii = Vec::with_capacity(g * g);
-        for texels in &cells {
-            let sum: Vec3 = texels.iter().map(|&t| dirs.dirs[t as usize]).sum();
-            let c = sum.try_normalize().unwrap_or(dirs.dirs[texels[0] as usize]);
-            let min_dot = texels
-                .iter()
-                .map(|&t| c.dot(dirs.dirs[t as usize]))
-                .fold(1.0f32, f32::min);
-            // Pad by a texel's worth of float error so the bound stays conservative.
-            let rho = min_dot.clamp(-1.0, 1.0).acos() + 1e-4;
-            centres.push(c);
-            radii.push(rho);
+        for cj in 0..g {
+            for ci in 0..g {
+                let start = texels.len();
+                for j in cj * CELL_TEXELS..((cj + 1) * CELL_TEXELS).min(side) {
+                    for i in ci * CELL_TEXELS..((ci + 1) * CELL_TEXELS).min(side) {
+                        texels.push((j * side + i) as u32);
+                        dirs.push(
+                            domain
+                                .square_to_dir(DomainImage::texel_centre(side, i, j))
+                                .as_vec3(),
+                        );
+                    }
+                }
+                let cell = &dirs[start..];
+                let c = cell.iter().sum::<Vec3>().try_normalize().unwrap_or(cell[0]);
+                let min_dot = cell.iter().map(|d| c.dot(*d)).fold(1.0f32, f32::min);
+                // Pad by float error so the bound stays conservative.
+                centres.push(c);
+                radii.push(min_dot.clamp(-1.0, 1.0).acos() + 1e-4);
+                while texels.len() % LANES != 0 {
+                    texels.push(u32::MAX);
+                    dirs.push(Vec3::Y);
+                }
+                cell_starts.push(texels.len());
+            }
         }
         CandidateGrid {
-            cells,
+            domain,
+            side,
+            texels,
+            dx: dirs.iter().map(|d| d.x).collect(),
+            dy: dirs.iter().map(|d| d.y).collect(),
+            dz: dirs.iter().map(|d| d.z).collect(),
+            cell_starts,
             centres,
             radii,
             candidates: Vec::new(),
             starts: Vec::new(),
+            seeds: DirectionsSoa::default(),
+            dots: Vec::new(),
         }
     }
 
+    fn cell_count(&self) -> usize {
+        self.centres.len()
+    }
+
     fn fill_candidates(&mut self, seeds: &[Vec3]) {
+        self.seeds.clear();
+        self.seeds.extend(seeds.iter().copied());
         self.candidates.clear();
         self.starts.clear();
         self.starts.push(0);
         for (c, &centre) in self.centres.iter().enumerate() {
-            let best_dot = seeds
-                .iter()
-                .map(|s| centre.dot(*s))
-                .fold(f32::NEG_INFINITY, f32::max);
-            let a_min = best_dot.clamp(-1.0, 1.0).acos();
-            let limit = a_min + 2.0 * self.radii[c];
-            let start = self.candidates.len();
-            if limit >= std::f32::consts::PI {
-                self.candidates.extend(0..seeds.len() as u16);
+            self.seeds.dots(centre, &mut self.dots);
+            let best_dot = self.dots.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            let limit = best_dot.clamp(-1.0, 1.0).acos() + 2.0 * self.radii[c];
+            let cos_limit = if limit >= std::f32::consts::PI {
+                -2.0
             } else {
-                let cos_limit = limit.cos() - 1e-6;
-                self.candidates.extend(
-                    seeds
-                        .iter()
-                        .enumerate()
-                        .filter(|(_, s)| centre.dot(**s) >= cos_limit)
-                        .map(|(k, _)| k as u16),
-                );
-            }
-            debug_assert!(self.candidates.len() > start, "a cell with no candidate light");
+                limit.cos() - 1e-6
+            };
+            self.candidates.extend(
+                self.dots
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, d)| **d >= cos_limit)
+                    .map(|(k, _)| k as u16),
+            );
             self.starts.push(self.candidates.len());
         }
     }

@@ -37,13 +37,21 @@ impl Distribution2D {
 
     /// Rebuilds in place, reusing the buffers.
     pub fn build(&mut self, values: &[f32], w: usize, h: usize) {
-        assert!(w > 0 && h > 0 && values.len() == w * h, "grid {w}×{h} vs {} values", values.len());
+        assert!(
+            w > 0 && h > 0 && values.len() == w * h,
+            "grid {w}×{h} vs {} values",
+            values.len()
+        );
         self.w = w;
         self.h = h;
         let raw_total: f64 = values.iter().map(|&v| clean(v)).sum();
         let mean = raw_total / (w * h) as f64;
         // All-black input: floor at an absolute value so the warp degenerates to the identity.
-        let floor = if mean > 0.0 { DENSITY_FLOOR * mean } else { 1.0 };
+        let floor = if mean > 0.0 {
+            DENSITY_FLOOR * mean
+        } else {
+            1.0
+        };
 
         self.conditional_cdf.resize(h * (w + 1), 0.0);
         self.marginal_cdf.resize(h + 1, 0.0);
@@ -163,7 +171,11 @@ impl Distribution2D {
 }
 
 fn clean(v: f32) -> f64 {
-    if v.is_finite() && v > 0.0 { v as f64 } else { 0.0 }
+    if v.is_finite() && v > 0.0 {
+        v as f64
+    } else {
+        0.0
+    }
 }
 
 /// Index i with cdf[i] ≤ u < cdf[i+1] (clamped to a valid segment).
@@ -195,7 +207,9 @@ mod tests {
 
     fn random_grid(w: usize, h: usize, seed: u64) -> Vec<f32> {
         let mut s = seed;
-        (0..w * h).map(|_| (lcg(&mut s) * 10.0) as f32 + 0.01).collect()
+        (0..w * h)
+            .map(|_| (lcg(&mut s) * 10.0) as f32 + 0.01)
+            .collect()
     }
 
     #[test]
@@ -216,7 +230,10 @@ mod tests {
             let xi = DVec2::new(lcg(&mut s), lcg(&mut s));
             let p = d.sample(xi);
             let back = d.forward(p);
-            assert!((back - xi).abs().max_element() < 1e-10, "{xi} -> {p} -> {back}");
+            assert!(
+                (back - xi).abs().max_element() < 1e-10,
+                "{xi} -> {p} -> {back}"
+            );
         }
     }
 
@@ -248,7 +265,10 @@ mod tests {
             .flat_map(|j| (0..50).map(move |k| (j, k as f64 / 50.0)))
             .map(|(j, x)| textbook_jump(j, x))
             .fold(0.0, f64::max);
-        assert!(biggest >= 0.25, "random density should break the textbook warp ({biggest})");
+        assert!(
+            biggest >= 0.25,
+            "random density should break the textbook warp ({biggest})"
+        );
     }
 
     /// χ² of warped samples against the induced density (integrated exactly per texel).

@@ -11,10 +11,10 @@
 
 use super::mapping::Domain;
 use crate::envmap::{EnvMap, Projection};
-use glam::{DVec2, Vec3};
+use glam::{DVec2, Vec3A};
 
 /// Source pixels per domain texel aimed for, at the coarsest part of the source (see module doc).
-const SOURCE_PIXELS_PER_TEXEL: f64 = 4.0;
+const SOURCE_PIXELS_PER_TEXEL: f64 = 8.0;
 /// Bounds on the automatic square side.
 const MIN_SIDE: usize = 16;
 const MAX_SIDE: usize = 512;
@@ -110,26 +110,35 @@ pub fn auto_side(projection: &Projection, width: usize, height: usize, domain: D
 }
 
 /// The precomputed source-pixel → domain-texel table for one (projection, size, domain, side).
-#[derive(Clone, Debug)]
+///
+/// The per-frame pass streams this table and the pixels once, so its size is the cost: entries
+/// exist only for pixels inside the domain, grouped in runs of consecutive pixels (a fisheye's
+/// circle is one run per row), and directions are stored pre-multiplied by the weight.
+#[derive(Debug)]
 pub struct Resampler {
     pub projection: Projection,
     pub width: usize,
     pub height: usize,
     pub domain: Domain,
     pub side: usize,
-    /// One entry per source pixel.
-    table: Vec<PixelEntry>,
+    /// One entry per source pixel inside the domain, in pixel order.
+    entries: Vec<PixelEntry>,
+    /// Runs of consecutive pixels with entries: (first pixel, first entry, length).
+    runs: Vec<(u32, u32, u32)>,
+    /// Per-texel accumulators (radiance, moment) side by side in one cache line, reused
+    /// between frames.
+    accum: Vec<[Vec3A; 2]>,
 }
 
 /// Where one source pixel goes.
 #[derive(Clone, Copy, Debug)]
 struct PixelEntry {
-    /// Texel index it lands in; `u32::MAX` = outside the domain.
+    /// Texel index it lands in.
     texel: u32,
     /// The pixel's solid angle over the texel's, so texel radiance = Σ weight·L.
     weight: f32,
-    /// The pixel's direction.
-    dir: [f32; 3],
+    /// The pixel's direction times its weight.
+    weighted_dir: [f32; 3],
 }
 
 impl Resampler {
@@ -143,27 +152,28 @@ impl Resampler {
     ) -> Self {
         let side = side.unwrap_or_else(|| auto_side(&projection, width, height, domain));
         let texel_sr = domain.solid_angle() / (side * side) as f64;
-        let mut table = Vec::with_capacity(width * height);
+        let mut entries = Vec::with_capacity(width * height);
+        let mut runs: Vec<(u32, u32, u32)> = Vec::new();
         for j in 0..height {
             for i in 0..width {
-                let entry = projection
-                    .pixel(i, j, width, height)
-                    .and_then(|(dir, sr)| {
-                        let uv = domain.dir_to_square(dir)?;
-                        let ti = ((uv.x * side as f64) as usize).min(side - 1);
-                        let tj = ((uv.y * side as f64) as usize).min(side - 1);
-                        Some(PixelEntry {
-                            texel: (tj * side + ti) as u32,
-                            weight: (sr / texel_sr) as f32,
-                            dir: dir.as_vec3().to_array(),
-                        })
-                    })
-                    .unwrap_or(PixelEntry {
-                        texel: u32::MAX,
-                        weight: 0.0,
-                        dir: [0.0; 3],
-                    });
-                table.push(entry);
+                let Some((dir, sr)) = projection.pixel(i, j, width, height) else {
+                    continue;
+                };
+                let Some(uv) = domain.dir_to_square(dir) else {
+                    continue;
+                };
+                let ti = ((uv.x * side as f64) as usize).min(side - 1);
+                let tj = ((uv.y * side as f64) as usize).min(side - 1);
+                let pixel = (j * width + i) as u32;
+                match runs.last_mut() {
+                    Some(run) if run.0 + run.2 == pixel => run.2 += 1,
+                    _ => runs.push((pixel, entries.len() as u32, 1)),
+                }
+                entries.push(PixelEntry {
+                    texel: (tj * side + ti) as u32,
+                    weight: (sr / texel_sr) as f32,
+                    weighted_dir: (dir.as_vec3() * (sr / texel_sr) as f32).to_array(),
+                });
             }
         }
         Resampler {
@@ -172,7 +182,9 @@ impl Resampler {
             height,
             domain,
             side,
-            table,
+            entries,
+            runs,
+            accum: Vec::new(),
         }
     }
 
@@ -186,33 +198,46 @@ impl Resampler {
     }
 
     /// Resamples `map` into `out`, reusing its buffers.
-    pub fn resample_into(&self, map: &EnvMap, out: &mut DomainImage) {
-        debug_assert_eq!(map.pixels.len(), self.table.len());
+    pub fn resample_into(&mut self, map: &EnvMap, out: &mut DomainImage) {
+        assert_eq!(
+            map.pixels.len(),
+            self.width * self.height,
+            "map does not fit the table"
+        );
         let n = self.side * self.side;
+        // Accumulate in 4-wide f32 registers (one SIMD multiply-add per pixel and quantity):
+        // energy is exact up to f32 rounding.
+        self.accum.clear();
+        self.accum.resize(n, [Vec3A::ZERO; 2]);
+        let lum = Vec3A::new(0.2126, 0.7152, 0.0722);
+        for &(first_pixel, first_entry, len) in &self.runs {
+            let (p0, e0, len) = (first_pixel as usize, first_entry as usize, len as usize);
+            for (e, p) in self.entries[e0..e0 + len]
+                .iter()
+                .zip(&map.pixels[p0..p0 + len])
+            {
+                let t = e.texel as usize;
+                let p = Vec3A::from_array(*p);
+                let a = &mut self.accum[t];
+                a[0] += p * e.weight;
+                a[1] += Vec3A::from_array(e.weighted_dir) * p.dot(lum);
+            }
+        }
         out.domain = self.domain;
         out.side = self.side;
         out.radiance.clear();
-        out.radiance.resize(n, [0.0; 3]);
+        out.radiance
+            .extend(self.accum.iter().map(|a| a[0].to_array()));
         out.moment.clear();
-        out.moment.resize(n, [0.0; 3]);
-        // Accumulate in f32 (a Vec3 multiply-add per pixel): energy is exact up to f32 rounding.
-        for (e, p) in self.table.iter().zip(&map.pixels) {
-            if e.texel != u32::MAX {
-                let t = e.texel as usize;
-                let l = Vec3::from_array(*p) * e.weight;
-                out.radiance[t] = (Vec3::from_array(out.radiance[t]) + l).to_array();
-                let y = EnvMap::luminance(l.to_array());
-                out.moment[t] =
-                    (Vec3::from_array(out.moment[t]) + Vec3::from_array(e.dir) * y).to_array();
-            }
-        }
+        out.moment
+            .extend(self.accum.iter().map(|a| a[1].to_array()));
         out.luminance.clear();
         out.luminance
             .extend(out.radiance.iter().map(|&p| EnvMap::luminance(p)));
     }
 
     /// Resamples into a new image.
-    pub fn resample(&self, map: &EnvMap) -> DomainImage {
+    pub fn resample(&mut self, map: &EnvMap) -> DomainImage {
         let mut out = DomainImage {
             domain: self.domain,
             side: self.side,
@@ -235,7 +260,7 @@ mod tests {
         let (w, h) = (256, 128);
         let map = EnvMap::from_pixels(w, h, vec![[1.0; 3]; w * h], Projection::LatLong).unwrap();
         for domain in [Domain::Upper, Domain::Sphere] {
-            let r = Resampler::new(Projection::LatLong, w, h, domain, None);
+            let mut r = Resampler::new(Projection::LatLong, w, h, domain, None);
             let img = r.resample(&map);
             let total = img.integral()[0];
             assert!(

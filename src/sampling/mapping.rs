@@ -77,7 +77,9 @@ impl std::str::FromStr for Domain {
         match s {
             "upper" | "hemisphere" => Ok(Domain::Upper),
             "sphere" => Ok(Domain::Sphere),
-            _ => Err(format!("unknown domain '{s}' (expected 'upper' or 'sphere')")),
+            _ => Err(format!(
+                "unknown domain '{s}' (expected 'upper' or 'sphere')"
+            )),
         }
     }
 }
@@ -154,11 +156,7 @@ pub fn equal_area_square_to_sphere(uv: DVec2) -> DVec3 {
     };
     let z = (1.0 - r * r).copysign(1.0 - d);
     let s = r * (2.0 - r * r).max(0.0).sqrt();
-    DVec3::new(
-        s * phi.cos().copysign(up),
-        s * phi.sin().copysign(vp),
-        z,
-    )
+    DVec3::new(s * phi.cos().copysign(up), s * phi.sin().copysign(vp), z)
 }
 
 /// Inverse of [`equal_area_square_to_sphere`] for a unit vector in the local frame.
@@ -205,7 +203,10 @@ mod tests {
             for _ in 0..100_000 {
                 let uv = DVec2::new(lcg(&mut s), lcg(&mut s));
                 let d = domain.square_to_dir(uv);
-                assert!((d.length() - 1.0).abs() < 1e-12, "{domain:?} {uv} -> {d} not unit");
+                assert!(
+                    (d.length() - 1.0).abs() < 1e-12,
+                    "{domain:?} {uv} -> {d} not unit"
+                );
                 let back = domain.dir_to_square(d).expect("inside the domain");
                 assert!(
                     (back - uv).abs().max_element() < 1e-12,
@@ -299,8 +300,20 @@ mod tests {
 
     #[test]
     fn below_horizon_is_outside_upper() {
-        assert!(Domain::Upper.dir_to_square(DVec3::new(0.0, -0.1, 1.0)).is_none());
-        assert!(Domain::Sphere.dir_to_square(DVec3::new(0.0, -0.1, 1.0)).is_some());
-        assert!(Domain::Sphere.dir_to_square(DVec3::new(f64::NAN, 0.0, 1.0)).is_none());
+        assert!(
+            Domain::Upper
+                .dir_to_square(DVec3::new(0.0, -0.1, 1.0))
+                .is_none()
+        );
+        assert!(
+            Domain::Sphere
+                .dir_to_square(DVec3::new(0.0, -0.1, 1.0))
+                .is_some()
+        );
+        assert!(
+            Domain::Sphere
+                .dir_to_square(DVec3::new(f64::NAN, 0.0, 1.0))
+                .is_none()
+        );
     }
 }

@@ -31,7 +31,11 @@ pub fn progressive_points() -> &'static [DVec2] {
     static POINTS: OnceLock<Vec<DVec2>> = OnceLock::new();
     POINTS.get_or_init(|| {
         let pts = decode_points(EMBEDDED);
-        if pts.len() == N_MAX { pts } else { relaxed_halton(N_MAX) }
+        if pts.len() == N_MAX {
+            pts
+        } else {
+            relaxed_halton(N_MAX)
+        }
     })
 }
 
@@ -46,6 +50,7 @@ fn decode_points(bytes: &[u8]) -> Vec<DVec2> {
         .collect()
 }
 
+#[cfg(test)]
 fn encode_points(pts: &[DVec2]) -> Vec<u8> {
     pts.iter()
         .flat_map(|p| p.x.to_le_bytes().into_iter().chain(p.y.to_le_bytes()))
@@ -84,7 +89,10 @@ pub fn relaxed_halton(n: usize) -> Vec<DVec2> {
     let mut end = 4;
     while start < n {
         let end_c = end.min(n);
-        let raster = ((SAMPLES_PER_CELL * end_c) as f64).sqrt().ceil().clamp(64.0, 512.0) as usize;
+        let raster = ((SAMPLES_PER_CELL * end_c) as f64)
+            .sqrt()
+            .ceil()
+            .clamp(64.0, 512.0) as usize;
         for _ in 0..LLOYD_ITERATIONS {
             index.rebuild(&pts[..end_c]);
             let mut sum = vec![DVec2::ZERO; end_c - start];
@@ -237,7 +245,10 @@ mod tests {
             n *= 2;
         }
         for p in relaxed {
-            assert!(p.x > 0.0 && p.x < 1.0 && p.y > 0.0 && p.y < 1.0, "{p} on the boundary");
+            assert!(
+                p.x > 0.0 && p.x < 1.0 && p.y > 0.0 && p.y < 1.0,
+                "{p} on the boundary"
+            );
         }
     }
 
@@ -246,7 +257,10 @@ mod tests {
     fn embedded_set_matches_recomputation() {
         let fresh = relaxed_halton(N_MAX);
         if std::env::var_os("VEMLIGHT_BLESS").is_some() {
-            let path = concat!(env!("CARGO_MANIFEST_DIR"), "/src/sampling/pointset-1024.bin");
+            let path = concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/src/sampling/pointset-1024.bin"
+            );
             std::fs::write(path, encode_points(&fresh)).expect("write the point set");
         }
         assert!(

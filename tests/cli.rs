@@ -1,0 +1,352 @@
+//! The `vemlight lights` command as a user runs it: outputs, formats and bad input.
+
+mod common;
+
+use common::{assert_valid, data_path, lightset_validator, write_exr};
+use glam::{Quat, Vec3};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn vemlight(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(args)
+        .output()
+        .expect("run vemlight")
+}
+
+fn tmp_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("vemlight-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn stdout_json(out: &Output) -> serde_json::Value {
+    assert!(
+        out.status.success(),
+        "failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("stdout is JSON")
+}
+
+/// A failing run: non-zero exit, no panic, and stderr says `needle`.
+fn assert_fails_with(out: &Output, needle: &str) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "should fail; stderr: {err}");
+    assert!(!err.contains("panicked"), "panicked: {err}");
+    assert!(
+        err.to_lowercase().contains(&needle.to_lowercase()),
+        "stderr lacks '{needle}': {err}"
+    );
+    assert!(out.stdout.is_empty(), "nothing on stdout on failure");
+}
+
+#[test]
+fn lights_prints_a_valid_lightset() {
+    let out = vemlight(&[
+        "lights",
+        data_path("sunrise.exr").to_str().unwrap(),
+        "--lights",
+        "64",
+    ]);
+    let doc = stdout_json(&out);
+    assert_valid(&lightset_validator(), &doc);
+    assert_eq!(doc["lights"].as_array().unwrap().len(), 64);
+    assert_eq!(doc["domain"], "sphere");
+    assert_eq!(doc["method"], "voronoi");
+    assert_eq!(doc["sh9"].as_array().unwrap().len(), 27);
+    // The sun of sunrise.exr is 8° above the horizon: the primary light says so.
+    let p = &doc["primary"]["to_light"];
+    let elevation = p[1].as_f64().unwrap().asin().to_degrees();
+    assert!((elevation - 8.0).abs() < 3.0, "sun elevation {elevation}°");
+}
+
+#[test]
+fn max_error_reports_the_chosen_count() {
+    let out = vemlight(&[
+        "lights",
+        data_path("city.exr").to_str().unwrap(),
+        "--domain",
+        "upper",
+        "--max-error",
+        "0.01",
+    ]);
+    let doc = stdout_json(&out);
+    assert_valid(&lightset_validator(), &doc);
+    let n = doc["lights"].as_array().unwrap().len();
+    assert!(n.is_power_of_two() && n <= 64, "{n}");
+    assert!(doc["diagnostics"]["estimated_error"].as_f64().unwrap() <= 0.01);
+    assert_eq!(doc["diagnostics"]["max_error_met"], true);
+    assert_eq!(doc["domain"], "upper");
+}
+
+#[test]
+fn median_cut_method_runs_from_the_cli() {
+    let out = vemlight(&[
+        "lights",
+        data_path("studio.exr").to_str().unwrap(),
+        "--method",
+        "median-cut",
+        "-n",
+        "16",
+    ]);
+    let doc = stdout_json(&out);
+    assert_valid(&lightset_validator(), &doc);
+    assert_eq!(doc["method"], "median-cut");
+    assert_eq!(doc["lights"].as_array().unwrap().len(), 16);
+}
+
+/// glTF: one directional light and node per light, node rotation maps −Z onto −to_light.
+#[test]
+fn gltf_output_rotates_minus_z_onto_the_travel_direction() {
+    let file = data_path("interior.exr");
+    let json = stdout_json(&vemlight(&["lights", file.to_str().unwrap(), "-n", "8"]));
+    let gltf = stdout_json(&vemlight(&[
+        "lights",
+        file.to_str().unwrap(),
+        "-n",
+        "8",
+        "--format",
+        "gltf",
+    ]));
+    assert_eq!(gltf["asset"]["version"], "2.0");
+    let lights = gltf["extensions"]["KHR_lights_punctual"]["lights"]
+        .as_array()
+        .unwrap();
+    let nodes = gltf["nodes"].as_array().unwrap();
+    assert_eq!(lights.len(), 8);
+    assert_eq!(nodes.len(), 8);
+    for (k, node) in nodes.iter().enumerate() {
+        let r: Vec<f32> = node["rotation"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap() as f32)
+            .collect();
+        let q = Quat::from_xyzw(r[0], r[1], r[2], r[3]);
+        let travel = q * Vec3::NEG_Z;
+        let to_light: Vec<f32> = json["lights"][k]["to_light"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap() as f32)
+            .collect();
+        let want = -Vec3::new(to_light[0], to_light[1], to_light[2]);
+        assert!(
+            (travel - want).length() < 1e-4,
+            "node {k}: {travel} vs {want}"
+        );
+        let light = &lights[node["extensions"]["KHR_lights_punctual"]["light"]
+            .as_u64()
+            .unwrap() as usize];
+        assert_eq!(light["type"], "directional");
+        let color = light["color"].as_array().unwrap();
+        assert!(
+            color
+                .iter()
+                .all(|c| (0.0..=1.0).contains(&c.as_f64().unwrap()))
+        );
+        // colour × intensity gives back the irradiance.
+        let irr = &json["lights"][k]["irradiance"];
+        let i = light["intensity"].as_f64().unwrap();
+        for c in 0..3 {
+            let back = color[c].as_f64().unwrap() * i;
+            let want = irr[c].as_f64().unwrap();
+            assert!(
+                (back - want).abs() <= 1e-5 * want.max(1e-3),
+                "{back} vs {want}"
+            );
+        }
+    }
+}
+
+#[test]
+fn fisheye_options_apply() {
+    let dir = tmp_dir("fisheye");
+    let (w, h) = (320, 240);
+    // A bright spot right of centre: to the +X side.
+    let mut px = vec![[0.01f32; 3]; w * h];
+    for j in 115..125 {
+        for i in 220..230 {
+            px[j * w + i] = [50.0; 3];
+        }
+    }
+    let path = dir.join("fisheye.exr");
+    write_exr(&path, w, h, &px);
+    let doc = stdout_json(&vemlight(&[
+        "lights",
+        path.to_str().unwrap(),
+        "--projection",
+        "fisheye-equisolid",
+        "--fov",
+        "185",
+        "--circle",
+        "160,120,118",
+        "-n",
+        "16",
+    ]));
+    assert_valid(&lightset_validator(), &doc);
+    assert_eq!(doc["domain"], "upper");
+    assert_eq!(doc["diagnostics"]["projection"], "fisheye-equisolid");
+    let p = &doc["primary"]["to_light"];
+    assert!(p[0].as_f64().unwrap() > 0.5, "primary {p}");
+}
+
+// ---- bad input ----
+
+fn truncated(dir: &Path) -> PathBuf {
+    let bytes = std::fs::read(data_path("night.exr")).unwrap();
+    let p = dir.join("truncated.exr");
+    std::fs::write(&p, &bytes[..bytes.len() / 3]).unwrap();
+    p
+}
+
+#[test]
+fn truncated_exr_is_a_clear_error() {
+    let dir = tmp_dir("truncated");
+    let out = vemlight(&["lights", truncated(&dir).to_str().unwrap()]);
+    assert_fails_with(&out, "cannot decode OpenEXR");
+}
+
+#[test]
+fn not_an_image_is_a_clear_error() {
+    let dir = tmp_dir("notimage");
+    let p = dir.join("notes.exr");
+    std::fs::write(&p, "just some text, named .exr").unwrap();
+    assert_fails_with(
+        &vemlight(&["lights", p.to_str().unwrap()]),
+        "not an OpenEXR or Radiance HDR",
+    );
+    let empty = dir.join("empty.hdr");
+    std::fs::write(&empty, b"").unwrap();
+    assert_fails_with(&vemlight(&["lights", empty.to_str().unwrap()]), "empty");
+    assert_fails_with(
+        &vemlight(&["lights", dir.join("missing.exr").to_str().unwrap()]),
+        "cannot read",
+    );
+}
+
+/// A header claiming 100 000 × 100 000 pixels is refused before any pixel buffer is allocated.
+#[test]
+fn huge_headers_are_refused() {
+    let dir = tmp_dir("huge");
+    // EXR: write a tiny valid file, then rewrite both windows to 100 000 × 100 000.
+    let small = dir.join("small.exr");
+    write_exr(&small, 4, 2, &[[1.0; 3]; 8]);
+    let mut bytes = std::fs::read(&small).unwrap();
+    for name in [&b"dataWindow\0box2i\0"[..], &b"displayWindow\0box2i\0"[..]] {
+        let at = bytes
+            .windows(name.len())
+            .position(|w| w == name)
+            .expect("window attribute")
+            + name.len()
+            + 4;
+        for (k, v) in [0i32, 0, 99_999, 99_999].iter().enumerate() {
+            bytes[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
+        }
+    }
+    let huge_exr = dir.join("huge.exr");
+    std::fs::write(&huge_exr, &bytes).unwrap();
+    let out = vemlight(&["lights", huge_exr.to_str().unwrap()]);
+    assert_fails_with(&out, "100000×100000");
+
+    let huge_hdr = dir.join("huge.hdr");
+    let mut hdr = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 100000\n".to_vec();
+    hdr.extend_from_slice(&[1, 1, 1, 128].repeat(16));
+    std::fs::write(&huge_hdr, &hdr).unwrap();
+    let out = vemlight(&["lights", huge_hdr.to_str().unwrap()]);
+    assert_fails_with(&out, "100000×100000");
+}
+
+#[test]
+fn wrong_aspect_for_the_projection_is_refused() {
+    let dir = tmp_dir("aspect");
+    let p = dir.join("square.exr");
+    write_exr(&p, 64, 64, &vec![[1.0; 3]; 64 * 64]);
+    assert_fails_with(
+        &vemlight(&["lights", p.to_str().unwrap(), "--projection", "latlong"]),
+        "must be 2:1",
+    );
+    let q = dir.join("wide.exr");
+    write_exr(&q, 64, 16, &vec![[1.0; 3]; 64 * 16]);
+    assert_fails_with(
+        &vemlight(&[
+            "lights",
+            q.to_str().unwrap(),
+            "--projection",
+            "hemisphere-square",
+        ]),
+        "must be square",
+    );
+}
+
+#[test]
+fn bad_arguments_are_refused() {
+    let f = data_path("night.exr");
+    let f = f.to_str().unwrap();
+    assert_fails_with(
+        &vemlight(&["lights", f, "--lights", "0"]),
+        "between 1 and 1024",
+    );
+    assert_fails_with(
+        &vemlight(&["lights", f, "--lights", "5000"]),
+        "between 1 and 1024",
+    );
+    assert_fails_with(&vemlight(&["lights", f, "--max-error=-1"]), "positive");
+    assert_fails_with(
+        &vemlight(&["lights", f, "--method", "magic"]),
+        "unknown method",
+    );
+    assert_fails_with(
+        &vemlight(&["lights", f, "--domain", "left"]),
+        "unknown domain",
+    );
+    assert_fails_with(
+        &vemlight(&["lights", f, "--projection", "latlong", "--fov", "180"]),
+        "apply to fisheye",
+    );
+}
+
+#[test]
+fn all_black_map_gives_a_valid_zero_energy_lightset() {
+    let dir = tmp_dir("black");
+    let p = dir.join("black.exr");
+    write_exr(&p, 128, 64, &vec![[0.0; 3]; 128 * 64]);
+    let doc = stdout_json(&vemlight(&["lights", p.to_str().unwrap(), "-n", "32"]));
+    assert_valid(&lightset_validator(), &doc);
+    assert_eq!(doc["total_irradiance"], serde_json::json!([0.0, 0.0, 0.0]));
+    assert!(doc["primary"].is_null());
+    assert!(!String::from_utf8_lossy(&stdout_json_bytes(&doc)).contains("NaN"));
+}
+
+fn stdout_json_bytes(doc: &serde_json::Value) -> Vec<u8> {
+    serde_json::to_vec(doc).unwrap()
+}
+
+#[test]
+fn radiance_hdr_input_works() {
+    let dir = tmp_dir("hdr");
+    let (w, h) = (64usize, 32usize);
+    let px: Vec<image::Rgb<f32>> = (0..w * h)
+        .map(|k| {
+            let j = k / w;
+            // Bright sky above, dark ground below.
+            image::Rgb(if j < h / 2 {
+                [2.0, 2.0, 3.0]
+            } else {
+                [0.1, 0.1, 0.1]
+            })
+        })
+        .collect();
+    let p = dir.join("sky.hdr");
+    let f = std::fs::File::create(&p).unwrap();
+    image::codecs::hdr::HdrEncoder::new(f)
+        .encode(&px, w, h)
+        .unwrap();
+    let doc = stdout_json(&vemlight(&["lights", p.to_str().unwrap(), "-n", "8"]));
+    assert_valid(&lightset_validator(), &doc);
+    // ∫ over the upper half of L = (2,2,3) is 2π·(2,2,3); the ground adds 2π·0.1.
+    let total = doc["total_irradiance"][2].as_f64().unwrap();
+    let want = 2.0 * std::f64::consts::PI * (3.0 + 0.1);
+    assert!((total - want).abs() / want < 1e-3, "{total} vs {want}");
+}
