@@ -1,1 +1,40 @@
-fn main() {}
+//! Criterion benchmarks of per-frame light extraction (decoding excluded, single thread) and of EXR
+//! decoding, on the real sunrise map: `cargo bench --bench extract`. `vemlight bench` prints the
+//! same cases as medians with ratios to median cut.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use std::hint::black_box;
+use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
+use vemlight::eval::speed::standard_cases;
+use vemlight::lights::Extractor;
+
+fn sunrise_bytes() -> Vec<u8> {
+    std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/sunrise.exr"
+    ))
+    .expect("tests/data/sunrise.exr")
+}
+
+fn extraction(c: &mut Criterion) {
+    let map = EnvMap::decode(&sunrise_bytes(), None, DEFAULT_MAX_PIXELS).expect("decodes");
+    let mut group = c.benchmark_group("extract-256");
+    for case in standard_cases(&map, 256) {
+        let mut ex = Extractor::new();
+        ex.extract(&case.map, &case.opts); // build the cached tables outside the timing
+        group.bench_function(&case.name, |b| {
+            b.iter(|| black_box(ex.extract(black_box(&case.map), &case.opts)))
+        });
+    }
+    group.finish();
+}
+
+fn decoding(c: &mut Criterion) {
+    let bytes = sunrise_bytes();
+    c.bench_function("decode sunrise.exr 1024x512 DWAB", |b| {
+        b.iter(|| black_box(EnvMap::decode(black_box(&bytes), None, DEFAULT_MAX_PIXELS).unwrap()))
+    });
+}
+
+criterion_group!(benches, extraction, decoding);
+criterion_main!(benches);

@@ -128,6 +128,8 @@ fn default_beats_paper_variant_at_64() {
         };
         let d = err(&mut ex, Method::Voronoi);
         let p = err(&mut ex, Method::Paper);
+        let m = err(&mut ex, Method::MedianCut);
+        eprintln!("{name}: N=64 voronoi {d:.4} paper {p:.4} median-cut {m:.4}");
         ratios.push(d / p);
     }
     ratios.sort_by(f64::total_cmp);

