@@ -7,8 +7,12 @@
 // Loops over RGB channels and SIMD lanes read more clearly with an index.
 #![allow(clippy::needless_range_loop)]
 
+pub mod capture;
 pub mod envmap;
 pub mod eval;
 pub mod lights;
 pub mod lightset;
+pub mod metrics;
 pub mod sampling;
+pub mod server;
+pub mod temporal;

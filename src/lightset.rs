@@ -9,6 +9,7 @@ use crate::lights::{
     ExtractOptions, Extractor, Light, Method, PrimaryLight, primary_light, sh, total_irradiance,
 };
 use crate::sampling::{Domain, N_MAX};
+use crate::temporal::FilterInfo;
 use serde::{Deserialize, Serialize};
 use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
@@ -42,7 +43,50 @@ pub struct LightSet {
     pub sh9: Option<Vec<f32>>,
     /// Σ irradiance over the lights = ∫ L dω over the domain, linear RGB.
     pub total_irradiance: [f64; 3],
+    /// The temporal filter applied (streams only); its delay is how far the lights lag the frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub filter: Option<FilterInfo>,
     pub diagnostics: Diagnostics,
+}
+
+impl LightSet {
+    /// A document for `lights` computed from `map`; sequence numbers, timestamps, error and
+    /// timings are the caller's to fill in.
+    pub fn new(
+        lights: Vec<Light>,
+        map: &EnvMap,
+        method: Method,
+        domain: Domain,
+        source: &str,
+        lights_requested: usize,
+        domain_side: usize,
+    ) -> Self {
+        let now = now_ns();
+        LightSet {
+            schema: SCHEMA_ID.into(),
+            seq: 0,
+            frame: 0,
+            t_capture_ns: now,
+            t_emit_ns: now,
+            source: source.into(),
+            method,
+            domain,
+            primary: primary_light(&lights),
+            sh9: None,
+            total_irradiance: total_irradiance(&lights),
+            filter: None,
+            diagnostics: Diagnostics {
+                clamped_pixels: map.repairs.clamped_pixels(),
+                non_finite_pixels: map.repairs.non_finite_pixels,
+                negative_pixels: map.repairs.negative_pixels,
+                projection: map.projection.name().into(),
+                lights_requested,
+                domain_side,
+                ..Diagnostics::default()
+            },
+            lights,
+        }
+    }
 }
 
 /// How the set was made and what went wrong on the way.
@@ -187,45 +231,30 @@ pub fn lightset_for_map(
             (ex, err, None)
         }
     };
-    let sh9 = req.sh9.then(|| {
-        sh::project(extractor.domain_image().expect("resampled"))
-            .iter()
-            .map(|&c| c as f32)
-            .collect()
-    });
-    let now = now_ns();
-    LightSet {
-        schema: SCHEMA_ID.into(),
-        seq: 0,
-        frame: 0,
-        t_capture_ns: now,
-        t_emit_ns: now,
-        source: source.into(),
-        method: req.method,
-        domain,
-        primary: primary_light(&ex.lights),
-        sh9,
-        total_irradiance: total_irradiance(&ex.lights),
-        diagnostics: Diagnostics {
-            clamped_pixels: map.repairs.clamped_pixels(),
-            non_finite_pixels: map.repairs.non_finite_pixels,
-            negative_pixels: map.repairs.negative_pixels,
-            projection: map.projection.name().into(),
-            lights_requested: req.lights,
-            domain_side: ex.side,
-            estimated_error: error,
-            max_error: req.max_error,
-            max_error_met: met,
-            timings_ms: Timings {
-                decode: 0.0,
-                resample: resample_ms,
-                warp: ex.timings.warp_s * 1e3,
-                assign: ex.timings.assign_s * 1e3,
-                total: start.elapsed().as_secs_f64() * 1e3,
-            },
-        },
-        lights: ex.lights,
-    }
+    let sh9 = req
+        .sh9
+        .then(|| sh9_floats(extractor.domain_image().expect("resampled")));
+    let mut set = LightSet::new(
+        ex.lights, map, req.method, domain, source, req.lights, ex.side,
+    );
+    set.sh9 = sh9;
+    let d = &mut set.diagnostics;
+    d.estimated_error = error;
+    d.max_error = req.max_error;
+    d.max_error_met = met;
+    d.timings_ms = Timings {
+        decode: 0.0,
+        resample: resample_ms,
+        warp: ex.timings.warp_s * 1e3,
+        assign: ex.timings.assign_s * 1e3,
+        total: start.elapsed().as_secs_f64() * 1e3,
+    };
+    set
+}
+
+/// The `sh9` field of a domain image: 27 floats.
+pub fn sh9_floats(image: &crate::sampling::DomainImage) -> Vec<f32> {
+    sh::project(image).iter().map(|&c| c as f32).collect()
 }
 
 /// The set as a glTF 2.0 document with KHR_lights_punctual: one directional light and one node per

@@ -217,6 +217,63 @@ impl Extractor {
         }
     }
 
+    /// Several light counts from one frame, sharing the resampling and the warp: the seeds of N
+    /// lights are the first N of the seeds of the largest count (ALGORITHMS.md §4), so only the
+    /// per-count assignment is repeated. Results are in the order of `counts`.
+    pub fn extract_many(
+        &mut self,
+        map: &EnvMap,
+        domain: Domain,
+        method: Method,
+        counts: &[usize],
+    ) -> Vec<Extraction> {
+        let t0 = Instant::now();
+        self.resample(map, domain, None);
+        let resample_s = t0.elapsed().as_secs_f64();
+        let max_n = counts.iter().copied().max().unwrap_or(1).clamp(1, N_MAX);
+        let image = self.image.take().expect("resampled");
+        let total = image.integral();
+        let mut warp_s = 0.0;
+        if method != Method::MedianCut {
+            let t = Instant::now();
+            self.warp_seeds(&image, max_n);
+            warp_s = t.elapsed().as_secs_f64();
+        }
+        let all_seeds = std::mem::take(&mut self.seeds);
+        let out = counts
+            .iter()
+            .map(|&n| {
+                let n = n.clamp(1, N_MAX);
+                let t = Instant::now();
+                let lights = match method {
+                    Method::MedianCut => self.median_cut.lights(map, &image, n),
+                    Method::Voronoi | Method::Paper => {
+                        self.seeds.clear();
+                        self.seeds.extend_from_slice(&all_seeds[..n]);
+                        if method == Method::Voronoi {
+                            self.assign_spherical(&image)
+                        } else {
+                            self.assign_paper(&image)
+                        }
+                    }
+                };
+                Extraction {
+                    lights,
+                    total,
+                    side: image.side,
+                    timings: StageTimings {
+                        resample_s,
+                        warp_s,
+                        assign_s: t.elapsed().as_secs_f64(),
+                    },
+                }
+            })
+            .collect();
+        self.seeds = all_seeds;
+        self.image = Some(image);
+        out
+    }
+
     /// Builds the continuous warp over the luminance and pushes the first `n` progressive points
     /// through it (ALGORITHMS.md §2–3).
     fn warp_seeds(&mut self, image: &DomainImage, n: usize) {

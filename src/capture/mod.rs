@@ -1,0 +1,65 @@
+//! Frame sources and the capture pipeline: the first and the last stage of the daemon.
+//!
+//! Input: a [`FrameSource`] (the synthetic sky, a file, a directory of frames, raw frames on
+//! stdin). Output: filtered LightSet documents, published per light count on `watch` channels
+//! (latest-state semantics: a slow reader skips frames and never holds up the capture loop).
+//!
+//! Threads: one reads frames into a one-slot mailbox (a frame not yet taken when the next arrives
+//! is dropped and counted); one takes the newest frame, extracts lights for every light count
+//! clients ask for (one resampling and warp shared by all), filters each id over time and
+//! publishes.
+
+pub mod files;
+pub mod pipeline;
+pub mod stdin;
+
+use crate::envmap::{EnvMap, InputError};
+
+/// Why a source could not deliver a frame.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    /// This frame is bad (corrupt file, wrong size); later frames may be fine.
+    #[error("bad frame: {0}")]
+    BadFrame(String),
+    /// The source cannot go on (directory gone, pipe broken).
+    #[error("source failed: {0}")]
+    Fatal(String),
+}
+
+impl From<InputError> for SourceError {
+    fn from(e: InputError) -> Self {
+        SourceError::BadFrame(e.to_string())
+    }
+}
+
+/// Something that yields environment-map frames, pacing itself (at its frame rate, or at the pace
+/// its producer writes).
+pub trait FrameSource: Send {
+    /// Blocks until the next frame is due and writes it into `out` (reusing its buffer where it can).
+    /// `Ok(false)`: the source has ended normally (end of a non-looping sequence, stdin closed).
+    fn next_frame(&mut self, out: &mut EnvMap) -> Result<bool, SourceError>;
+
+    /// A short description for `/healthz` and the LightSet's `source` field.
+    fn describe(&self) -> String;
+
+    /// Nominal frames per second (0 when the producer sets the pace).
+    fn nominal_fps(&self) -> f64;
+}
+
+/// Sleeps until `next` (a deadline on a fixed frame clock) and advances it by one period; if the
+/// caller fell more than a frame behind, the clock restarts from now instead of bursting.
+pub fn pace(next: &mut std::time::Instant, fps: f64) {
+    if fps <= 0.0 {
+        return;
+    }
+    let period = std::time::Duration::from_secs_f64(1.0 / fps);
+    let now = std::time::Instant::now();
+    if *next > now {
+        std::thread::sleep(*next - now);
+        *next += period;
+    } else if now - *next > period {
+        *next = now + period;
+    } else {
+        *next += period;
+    }
+}

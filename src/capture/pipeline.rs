@@ -1,0 +1,427 @@
+//! The daemon's capture → extract → filter → publish loop, and the [`Hub`] through which the
+//! server reads what it publishes.
+
+use super::{FrameSource, SourceError};
+use crate::envmap::{EnvMap, Projection};
+use crate::lights::{Extractor, Method};
+use crate::lightset::{LightSet, Timings, default_domain, now_ns, sh9_floats};
+use crate::metrics::Metrics;
+use crate::sampling::{Domain, N_MAX};
+use crate::temporal::{FilterInfo, FilterSpec, TemporalFilter};
+use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
+use tokio::sync::watch;
+
+/// How the pipeline turns frames into light sets.
+#[derive(Clone, Debug)]
+pub struct PipelineConfig {
+    pub method: Method,
+    /// `None`: sphere for lat-long sources, upper hemisphere otherwise.
+    pub domain: Option<Domain>,
+    /// Light count published even with no client (and served by `/v1/lights/latest`).
+    pub default_lights: usize,
+    pub filter: FilterSpec,
+    pub sh9: bool,
+    /// Most distinct light counts served at once (each costs one assignment pass per frame).
+    pub max_light_counts: usize,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        PipelineConfig {
+            method: Method::Voronoi,
+            domain: None,
+            default_lights: 64,
+            filter: FilterSpec::default(),
+            sh9: true,
+            max_light_counts: 16,
+        }
+    }
+}
+
+/// One published LightSet, serialised once for every reader.
+#[derive(Debug)]
+pub struct Published {
+    pub seq: u64,
+    pub frame: u64,
+    pub t_capture_ns: u64,
+    /// When the frame entered the pipeline (for latency measurements in this process).
+    pub captured_at: Instant,
+    /// The LightSet document, shared by every reader without copying.
+    pub json: axum::extract::ws::Utf8Bytes,
+}
+
+/// The source's state as `/healthz` reports it.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SourceHealth {
+    pub source: String,
+    /// "starting", "running", "ended" or "failed".
+    pub state: &'static str,
+    pub last_error: Option<String>,
+    pub frames_captured: u64,
+    /// Seconds since the last good frame; `None` before the first.
+    pub last_frame_age_s: Option<f64>,
+}
+
+struct HealthState {
+    source: String,
+    state: &'static str,
+    last_error: Option<String>,
+    frames: u64,
+    last_frame: Option<Instant>,
+}
+
+/// One light count's channel and how many subscribers want it.
+struct Channel {
+    subscribers: usize,
+    tx: watch::Sender<Option<Arc<Published>>>,
+}
+
+/// Shared between the pipeline threads and the server: the latest LightSet per light count,
+/// metrics and health.
+pub struct Hub {
+    channels: Mutex<BTreeMap<usize, Channel>>,
+    default_lights: usize,
+    max_light_counts: usize,
+    pub metrics: Arc<Metrics>,
+    health: Mutex<HealthState>,
+    shutdown: AtomicBool,
+    /// Notified on shutdown so per-client loops can close cleanly.
+    pub shutdown_tx: watch::Sender<bool>,
+}
+
+/// A client's interest in one light count; dropping it tells the pipeline.
+pub struct Subscription {
+    hub: Arc<Hub>,
+    pub lights: usize,
+    pub rx: watch::Receiver<Option<Arc<Published>>>,
+}
+
+impl Drop for Subscription {
+    fn drop(&mut self) {
+        let mut ch = self.hub.channels.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(c) = ch.get_mut(&self.lights) {
+            c.subscribers = c.subscribers.saturating_sub(1);
+            if c.subscribers == 0 && self.lights != self.hub.default_lights {
+                ch.remove(&self.lights);
+            }
+        }
+    }
+}
+
+impl Hub {
+    pub fn new(default_lights: usize, max_light_counts: usize, source: &str) -> Arc<Self> {
+        let mut channels = BTreeMap::new();
+        channels.insert(
+            default_lights,
+            Channel {
+                subscribers: 0,
+                tx: watch::channel(None).0,
+            },
+        );
+        Arc::new(Hub {
+            channels: Mutex::new(channels),
+            default_lights,
+            max_light_counts: max_light_counts.max(1),
+            metrics: Arc::new(Metrics::default()),
+            health: Mutex::new(HealthState {
+                source: source.into(),
+                state: "starting",
+                last_error: None,
+                frames: 0,
+                last_frame: None,
+            }),
+            shutdown: AtomicBool::new(false),
+            shutdown_tx: watch::channel(false).0,
+        })
+    }
+
+    pub fn default_lights(&self) -> usize {
+        self.default_lights
+    }
+
+    /// Subscribes to the sets of `lights` lights (1–1024); refused when that would exceed the
+    /// number of distinct light counts served at once.
+    pub fn subscribe(self: &Arc<Self>, lights: usize) -> Result<Subscription, String> {
+        if !(1..=N_MAX).contains(&lights) {
+            return Err(format!(
+                "lights must be between 1 and {N_MAX}, got {lights}"
+            ));
+        }
+        let mut ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
+        if !ch.contains_key(&lights) && ch.len() >= self.max_light_counts {
+            let served: Vec<String> = ch.keys().map(|k| k.to_string()).collect();
+            return Err(format!(
+                "the daemon already serves {} distinct light counts ({}); ask for one of them",
+                ch.len(),
+                served.join(", ")
+            ));
+        }
+        let c = ch.entry(lights).or_insert_with(|| Channel {
+            subscribers: 0,
+            tx: watch::channel(None).0,
+        });
+        c.subscribers += 1;
+        Ok(Subscription {
+            hub: self.clone(),
+            lights,
+            rx: c.tx.subscribe(),
+        })
+    }
+
+    /// The latest set for the default light count.
+    pub fn latest(&self) -> Option<Arc<Published>> {
+        let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
+        ch.get(&self.default_lights)
+            .and_then(|c| c.tx.borrow().clone())
+    }
+
+    fn light_counts(&self) -> Vec<usize> {
+        let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
+        ch.keys().copied().collect()
+    }
+
+    fn publish(&self, lights: usize, p: Arc<Published>) {
+        let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(c) = ch.get(&lights) {
+            c.tx.send_replace(Some(p));
+        }
+    }
+
+    pub fn health(&self) -> SourceHealth {
+        let h = self.health.lock().unwrap_or_else(|e| e.into_inner());
+        SourceHealth {
+            source: h.source.clone(),
+            state: h.state,
+            last_error: h.last_error.clone(),
+            frames_captured: h.frames,
+            last_frame_age_s: h.last_frame.map(|t| t.elapsed().as_secs_f64()),
+        }
+    }
+
+    fn set_health(&self, f: impl FnOnce(&mut HealthState)) {
+        f(&mut self.health.lock().unwrap_or_else(|e| e.into_inner()));
+    }
+
+    /// Stops the pipeline threads and tells every client loop to close.
+    pub fn shutdown(&self) {
+        self.shutdown.store(true, Ordering::SeqCst);
+        self.shutdown_tx.send_replace(true);
+    }
+
+    pub fn is_shut_down(&self) -> bool {
+        self.shutdown.load(Ordering::SeqCst)
+    }
+}
+
+/// A captured frame waiting for processing.
+struct Frame {
+    map: EnvMap,
+    index: u64,
+    t_capture_ns: u64,
+    captured_at: Instant,
+}
+
+/// The one-slot mailbox between the capture and the processing thread: newest frame wins.
+#[derive(Default)]
+struct Mailbox {
+    slot: Mutex<MailboxState>,
+    ready: Condvar,
+}
+
+#[derive(Default)]
+struct MailboxState {
+    frame: Option<Frame>,
+    closed: bool,
+    /// Maps handed back by the processing thread for reuse.
+    spare: Vec<EnvMap>,
+}
+
+/// Starts the capture and processing threads. They run until the source ends (processing stops
+/// after its last frame; the hub keeps serving the last set) or [`Hub::shutdown`].
+pub fn spawn(
+    mut source: Box<dyn FrameSource>,
+    hub: Arc<Hub>,
+    cfg: PipelineConfig,
+) -> std::io::Result<()> {
+    let mailbox = Arc::new(Mailbox::default());
+    let fps = source.nominal_fps();
+    let source_name = source.describe();
+
+    let (mb, h) = (mailbox.clone(), hub.clone());
+    std::thread::Builder::new()
+        .name("vemlight-capture".into())
+        .spawn(move || capture_loop(source.as_mut(), &h, &mb))?;
+
+    std::thread::Builder::new()
+        .name("vemlight-extract".into())
+        .spawn(move || process_loop(&hub, &mailbox, &cfg, fps, &source_name))?;
+    Ok(())
+}
+
+fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox) {
+    let mut index = 0u64;
+    let blank = || EnvMap {
+        width: 0,
+        height: 0,
+        pixels: Vec::new(),
+        projection: Projection::LatLong,
+        repairs: Default::default(),
+    };
+    while !hub.is_shut_down() {
+        let mut map = {
+            let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
+            s.spare.pop().unwrap_or_else(blank)
+        };
+        let t = Instant::now();
+        let result = source.next_frame(&mut map);
+        hub.metrics.stage_capture.record(t.elapsed());
+        match result {
+            Ok(true) => {
+                Metrics::inc(&hub.metrics.frames_captured);
+                hub.set_health(|h| {
+                    h.state = "running";
+                    h.frames += 1;
+                    h.last_frame = Some(Instant::now());
+                });
+                let frame = Frame {
+                    map,
+                    index,
+                    t_capture_ns: now_ns(),
+                    captured_at: Instant::now(),
+                };
+                index += 1;
+                let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
+                if let Some(old) = s.frame.replace(frame) {
+                    Metrics::inc(&hub.metrics.frames_dropped);
+                    s.spare.push(old.map);
+                }
+                mailbox.ready.notify_one();
+            }
+            Ok(false) => {
+                tracing::info!("source ended; serving the last light set");
+                hub.set_health(|h| h.state = "ended");
+                break;
+            }
+            Err(SourceError::BadFrame(e)) => {
+                Metrics::inc(&hub.metrics.source_errors);
+                tracing::warn!("skipping a bad frame: {e}");
+                hub.set_health(|h| h.last_error = Some(e));
+                mailbox
+                    .slot
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .spare
+                    .push(map);
+            }
+            Err(SourceError::Fatal(e)) => {
+                Metrics::inc(&hub.metrics.source_errors);
+                tracing::error!("source failed: {e}; serving the last light set");
+                hub.set_health(|h| {
+                    h.state = "failed";
+                    h.last_error = Some(e);
+                });
+                break;
+            }
+        }
+    }
+    let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
+    s.closed = true;
+    mailbox.ready.notify_all();
+}
+
+fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, source: &str) {
+    let mut extractor = Extractor::new();
+    let mut filters: HashMap<usize, TemporalFilter> = HashMap::new();
+    let mut seqs: HashMap<usize, u64> = HashMap::new();
+    let filter_info = FilterInfo::new(&cfg.filter, fps);
+    loop {
+        let frame = {
+            let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
+            loop {
+                if hub.is_shut_down() {
+                    return;
+                }
+                if let Some(f) = s.frame.take() {
+                    break f;
+                }
+                if s.closed {
+                    return;
+                }
+                s = mailbox
+                    .ready
+                    .wait_timeout(s, Duration::from_millis(200))
+                    .unwrap_or_else(|e| e.into_inner())
+                    .0;
+            }
+        };
+        let start = Instant::now();
+        let domain = cfg
+            .domain
+            .unwrap_or_else(|| default_domain(&frame.map.projection));
+        let counts = hub.light_counts();
+        let extractions = extractor.extract_many(&frame.map, domain, cfg.method, &counts);
+        let m = &hub.metrics;
+        if let Some(first) = extractions.first() {
+            m.stage_resample.record_secs(first.timings.resample_s);
+            m.stage_warp.record_secs(first.timings.warp_s);
+        }
+        let sh9 = cfg
+            .sh9
+            .then(|| extractor.domain_image().map(sh9_floats))
+            .flatten();
+        // Forget the filter state of light counts nobody asks for any more.
+        filters.retain(|n, _| counts.contains(n));
+        for (&n, ex) in counts.iter().zip(extractions) {
+            m.stage_assign.record_secs(ex.timings.assign_s);
+            let t = Instant::now();
+            let filter = filters
+                .entry(n)
+                .or_insert_with(|| TemporalFilter::new(&cfg.filter));
+            let lights = filter.filter(&ex.lights);
+            m.stage_filter.record(t.elapsed());
+
+            let t = Instant::now();
+            let seq = seqs.entry(n).or_insert(0);
+            *seq += 1;
+            let mut set = LightSet::new(lights, &frame.map, cfg.method, domain, source, n, ex.side);
+            set.seq = *seq;
+            set.frame = frame.index;
+            set.t_capture_ns = frame.t_capture_ns;
+            set.sh9 = sh9.clone();
+            set.filter = Some(filter_info.clone());
+            set.diagnostics.timings_ms = Timings {
+                decode: 0.0,
+                resample: ex.timings.resample_s * 1e3,
+                warp: ex.timings.warp_s * 1e3,
+                assign: ex.timings.assign_s * 1e3,
+                total: start.elapsed().as_secs_f64() * 1e3,
+            };
+            set.t_emit_ns = now_ns();
+            match serde_json::to_string(&set) {
+                Ok(json) => hub.publish(
+                    n,
+                    Arc::new(Published {
+                        seq: *seq,
+                        frame: frame.index,
+                        t_capture_ns: frame.t_capture_ns,
+                        captured_at: frame.captured_at,
+                        json: json.into(),
+                    }),
+                ),
+                Err(e) => tracing::error!("cannot serialise a light set: {e}"),
+            }
+            Metrics::inc(&m.lightsets_published);
+            m.stage_publish.record(t.elapsed());
+        }
+        Metrics::inc(&m.frames_processed);
+        mailbox
+            .slot
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .spare
+            .push(frame.map);
+    }
+}

@@ -1,0 +1,89 @@
+//! The one error type of the HTTP API, turned into an RFC 9457 `application/problem+json` response
+//! in one place.
+
+use crate::envmap::InputError;
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+
+/// Every way a request can fail, each with its status code.
+#[derive(Debug, thiserror::Error)]
+pub enum ApiError {
+    /// 400: a parameter is missing, malformed or out of range.
+    #[error("{0}")]
+    BadRequest(String),
+    /// 401: the bearer token is missing or wrong.
+    #[error("a valid 'Authorization: Bearer' token is required")]
+    Unauthorized,
+    /// 413: the body or the image it holds is larger than allowed.
+    #[error("{0}")]
+    TooLarge(String),
+    /// 415: the body is not an OpenEXR or Radiance HDR file.
+    #[error("{0}")]
+    UnsupportedMedia(String),
+    /// 422: an EXR/HDR that cannot be decoded or used (corrupt, wrong aspect, …).
+    #[error("{0}")]
+    Unprocessable(String),
+    /// 503: nothing to serve yet, or the daemon is busy.
+    #[error("{0}")]
+    Unavailable(String),
+    /// 500: a bug; details are logged, not sent.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl From<InputError> for ApiError {
+    fn from(e: InputError) -> Self {
+        match e {
+            InputError::UnsupportedFormat(_) => ApiError::UnsupportedMedia(e.to_string()),
+            InputError::TooLarge { .. } => ApiError::TooLarge(e.to_string()),
+            InputError::Corrupt { .. } | InputError::Unusable(_) => {
+                ApiError::Unprocessable(e.to_string())
+            }
+        }
+    }
+}
+
+impl ApiError {
+    pub fn status(&self) -> StatusCode {
+        match self {
+            ApiError::BadRequest(_) => StatusCode::BAD_REQUEST,
+            ApiError::Unauthorized => StatusCode::UNAUTHORIZED,
+            ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
+            ApiError::UnsupportedMedia(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            ApiError::Unprocessable(_) => StatusCode::UNPROCESSABLE_ENTITY,
+            ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let status = self.status();
+        let detail = match &self {
+            ApiError::Internal(d) => {
+                tracing::error!("internal error: {d}");
+                "Something went wrong".to_string()
+            }
+            other => other.to_string(),
+        };
+        let body = serde_json::json!({
+            "type": "about:blank",
+            "title": status.canonical_reason().unwrap_or("Error"),
+            "status": status.as_u16(),
+            "detail": detail,
+        });
+        let mut resp = (status, body.to_string()).into_response();
+        resp.headers_mut().insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/problem+json"),
+        );
+        if matches!(self, ApiError::Unauthorized) {
+            resp.headers_mut().insert(
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static("Bearer realm=\"vemlight\""),
+            );
+        }
+        resp
+    }
+}

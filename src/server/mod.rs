@@ -1,0 +1,364 @@
+//! The HTTP and WebSocket server of `vemlight serve` (axum).
+//!
+//! Input: the [`Hub`] the capture pipeline publishes into, and uploaded maps. Output: LightSet
+//! documents over `GET /v1/stream` (WebSocket), `GET /v1/lights/latest` and `POST /v1/lights`,
+//! plus `GET /healthz` and `GET /metrics`. [`app`] builds the router, so the binary and the tests
+//! serve the same thing.
+
+pub mod error;
+pub mod stream;
+
+pub use error::ApiError;
+
+use crate::capture::pipeline::Hub;
+use crate::envmap::{EnvMap, Projection};
+use crate::lights::{Extractor, Method};
+use crate::lightset::{LightRequest, lightset_for_map, now_ns};
+use crate::metrics::Metrics;
+use crate::sampling::Domain;
+use axum::Router;
+use axum::body::Body;
+use axum::extract::{Query, Request, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio::sync::Semaphore;
+
+/// Everything the handlers share; cheap to clone.
+#[derive(Clone)]
+pub struct AppState {
+    /// Latest sets per light count, metrics and source health, fed by the pipeline.
+    pub hub: Arc<Hub>,
+    /// Bearer token required by every endpoint but `/healthz`; `None` leaves them open.
+    pub token: Option<Arc<str>>,
+    /// Limits and workers for `POST /v1/lights`.
+    pub uploads: Arc<Uploads>,
+    /// WebSocket timing.
+    pub ws: Arc<WsConfig>,
+    started: Instant,
+}
+
+/// Limits of `POST /v1/lights` and the extractors that serve it.
+pub struct Uploads {
+    /// Largest accepted body in bytes (checked from Content-Length, then while reading).
+    pub max_body: usize,
+    /// Largest accepted image in pixels (checked from the image header before decoding).
+    pub max_pixels: u64,
+    /// Decoding and extraction run on blocking threads, this many at once.
+    permits: Semaphore,
+    /// Idle extractors, whose cached tables make repeated same-size uploads cheap.
+    extractors: Mutex<Vec<Extractor>>,
+}
+
+impl Uploads {
+    pub fn new(max_body: usize, max_pixels: u64, concurrency: usize) -> Self {
+        Uploads {
+            max_body,
+            max_pixels,
+            permits: Semaphore::new(concurrency.max(1)),
+            extractors: Mutex::new(Vec::new()),
+        }
+    }
+}
+
+/// WebSocket timing.
+pub struct WsConfig {
+    pub ping_interval: Duration,
+    /// A client whose socket does not accept a message within this time is disconnected.
+    pub send_timeout: Duration,
+}
+
+impl Default for WsConfig {
+    fn default() -> Self {
+        WsConfig {
+            ping_interval: Duration::from_secs(30),
+            send_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+impl AppState {
+    pub fn new(hub: Arc<Hub>, token: Option<String>, uploads: Uploads, ws: WsConfig) -> Self {
+        AppState {
+            hub,
+            token: token.filter(|t| !t.is_empty()).map(Into::into),
+            uploads: Arc::new(uploads),
+            ws: Arc::new(ws),
+            started: Instant::now(),
+        }
+    }
+}
+
+/// The router. Having it as a function lets the tests serve exactly what the binary serves.
+pub fn app(state: AppState) -> Router {
+    let protected = Router::new()
+        .route("/v1/stream", get(stream::stream))
+        .route("/v1/lights", post(post_lights))
+        .route("/v1/lights/latest", get(latest))
+        .route("/metrics", get(metrics))
+        .route_layer(middleware::from_fn_with_state(state.clone(), require_token));
+    Router::new()
+        .route("/healthz", get(healthz))
+        .merge(protected)
+        // Uploads are limited by `Uploads::max_body`, checked in the handler.
+        .layer(axum::extract::DefaultBodyLimit::disable())
+        .with_state(state)
+}
+
+/// Rejects requests without the configured bearer token (constant-time comparison).
+async fn require_token(State(state): State<AppState>, req: Request, next: Next) -> Response {
+    if let Some(token) = &state.token {
+        let given = req
+            .headers()
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "))
+            .unwrap_or("");
+        if !constant_time_eq(given.as_bytes(), token.as_bytes()) {
+            return ApiError::Unauthorized.into_response();
+        }
+    }
+    next.run(req).await
+}
+
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// Parses an optional query parameter, with a 400 naming it when malformed.
+pub fn parse_param<T: std::str::FromStr>(
+    q: &HashMap<String, String>,
+    name: &str,
+) -> Result<Option<T>, ApiError>
+where
+    T::Err: std::fmt::Display,
+{
+    q.get(name)
+        .map(|v| {
+            v.parse::<T>()
+                .map_err(|e| ApiError::BadRequest(format!("query parameter {name}='{v}': {e}")))
+        })
+        .transpose()
+}
+
+/// `GET /healthz`: 200 while the daemon can serve a light set (status "degraded" when the source
+/// has failed or ended and the last good set is being served), 503 before the first one.
+async fn healthz(State(state): State<AppState>) -> Response {
+    let source = state.hub.health();
+    let latest = state.hub.latest();
+    let status = match (latest.is_some(), source.state) {
+        (false, _) => "starting",
+        (true, "running") => "ok",
+        (true, _) => "degraded",
+    };
+    let body = serde_json::json!({
+        "status": status,
+        "serving_last_good_lightset": latest.is_some() && status == "degraded",
+        "latest_seq": latest.as_ref().map(|p| p.seq),
+        "latest_frame": latest.as_ref().map(|p| p.frame),
+        "latest_age_s": latest.as_ref().map(|p| p.captured_at.elapsed().as_secs_f64()),
+        "source": source,
+        "uptime_s": state.started.elapsed().as_secs_f64(),
+    });
+    let code = if latest.is_some() {
+        StatusCode::OK
+    } else {
+        StatusCode::SERVICE_UNAVAILABLE
+    };
+    (code, axum::Json(body)).into_response()
+}
+
+/// `GET /metrics`: Prometheus text format.
+async fn metrics(State(state): State<AppState>) -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("text/plain; version=0.0.4"),
+        )],
+        state.hub.metrics.render(),
+    )
+        .into_response()
+}
+
+/// `GET /v1/lights/latest[?lights=N]`: the newest published set (default light count, or N,
+/// waiting up to two frames' worth of time for a count not yet being computed).
+async fn latest(
+    Query(q): Query<HashMap<String, String>>,
+    State(state): State<AppState>,
+) -> Result<Response, ApiError> {
+    let lights = parse_param::<usize>(&q, "lights")?;
+    let published = match lights {
+        None => state.hub.latest(),
+        Some(n) if n == state.hub.default_lights() => state.hub.latest(),
+        Some(n) => {
+            let mut sub = state.hub.subscribe(n).map_err(ApiError::BadRequest)?;
+            let wait =
+                tokio::time::timeout(Duration::from_secs(2), sub.rx.wait_for(Option::is_some));
+            match wait.await {
+                Ok(Ok(v)) => v.clone(),
+                _ => None,
+            }
+        }
+    };
+    let p = published.ok_or_else(|| ApiError::Unavailable("no light set yet".into()))?;
+    Ok(json_response(p.json.as_str().to_owned()))
+}
+
+fn json_response(body: String) -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        body,
+    )
+        .into_response()
+}
+
+/// Content types an upload may declare (or none).
+fn acceptable_content_type(headers: &HeaderMap) -> Result<(), ApiError> {
+    let Some(ct) = headers.get(header::CONTENT_TYPE) else {
+        return Ok(());
+    };
+    let ct = ct.to_str().unwrap_or("").to_ascii_lowercase();
+    let essence = ct.split(';').next().unwrap_or("").trim();
+    if essence.is_empty()
+        || essence == "application/octet-stream"
+        || essence.starts_with("image/")
+        || essence == "application/x-exr"
+    {
+        Ok(())
+    } else {
+        Err(ApiError::UnsupportedMedia(format!(
+            "content type '{essence}' is not an image; send the raw EXR or HDR file \
+             (application/octet-stream or image/x-exr)"
+        )))
+    }
+}
+
+/// `POST /v1/lights`: a raw EXR or Radiance HDR body → the same LightSet `vemlight lights` gives.
+async fn post_lights(
+    Query(q): Query<HashMap<String, String>>,
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let metrics = state.hub.metrics.clone();
+    Metrics::inc(&metrics.http_lights_requests);
+    let result = post_lights_inner(q, &state, &headers, body).await;
+    if result.is_err() {
+        Metrics::inc(&metrics.http_lights_errors);
+    }
+    result
+}
+
+async fn post_lights_inner(
+    q: HashMap<String, String>,
+    state: &AppState,
+    headers: &HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    // Parameters first: a bad request is refused before its body is read.
+    let req = LightRequest {
+        lights: parse_param(&q, "lights")?.unwrap_or(64),
+        domain: parse_param::<Domain>(&q, "domain")?,
+        method: parse_param::<Method>(&q, "method")?.unwrap_or_default(),
+        max_error: parse_param(&q, "max_error")?,
+        estimate_error: true,
+        sh9: true,
+    };
+    req.validate().map_err(ApiError::BadRequest)?;
+    let projection = q
+        .get("projection")
+        .map(|p| Projection::parse(p).map_err(ApiError::BadRequest))
+        .transpose()?;
+    acceptable_content_type(headers)?;
+
+    let limits = &state.uploads;
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if let Some(len) = declared
+        && len > limits.max_body as u64
+    {
+        return Err(ApiError::TooLarge(format!(
+            "body of {len} bytes exceeds the limit of {} bytes",
+            limits.max_body
+        )));
+    }
+    let t = Instant::now();
+    let bytes = axum::body::to_bytes(body, limits.max_body)
+        .await
+        .map_err(|_| {
+            ApiError::TooLarge(format!(
+                "body exceeds the limit of {} bytes (or the upload broke off)",
+                limits.max_body
+            ))
+        })?;
+    if bytes.is_empty() {
+        return Err(ApiError::UnsupportedMedia(
+            "empty body: send the raw EXR or HDR file".into(),
+        ));
+    }
+    let read_ms = t.elapsed().as_secs_f64() * 1e3;
+
+    let _permit = limits
+        .permits
+        .acquire()
+        .await
+        .map_err(|_| ApiError::Unavailable("shutting down".into()))?;
+    let uploads = state.uploads.clone();
+    let max_pixels = uploads.max_pixels;
+    let set = tokio::task::spawn_blocking(move || -> Result<_, ApiError> {
+        let t = Instant::now();
+        let map = EnvMap::decode(&bytes, projection, max_pixels)?;
+        let decode_ms = t.elapsed().as_secs_f64() * 1e3;
+        let mut ex = uploads
+            .extractors
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .pop()
+            .unwrap_or_default();
+        let mut set = lightset_for_map(&mut ex, &map, &req, "upload");
+        uploads
+            .extractors
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(ex);
+        set.diagnostics.timings_ms.decode = decode_ms;
+        set.diagnostics.timings_ms.total += decode_ms + read_ms;
+        set.t_emit_ns = now_ns();
+        Ok(set)
+    })
+    .await
+    .map_err(|e| ApiError::Internal(format!("extraction task failed: {e}")))??;
+    let json = serde_json::to_string(&set).map_err(|e| ApiError::Internal(e.to_string()))?;
+    Ok(json_response(json))
+}
+
+/// Resolves when SIGINT or SIGTERM arrives.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let terminate = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let terminate = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {},
+        _ = terminate => {},
+    }
+}

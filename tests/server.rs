@@ -1,0 +1,595 @@
+//! The daemon as clients see it: the real server on 127.0.0.1 (port 0), real HTTP and WebSocket
+//! clients, a real capture pipeline fed by in-memory frames.
+
+mod common;
+
+use common::{assert_valid, data_path, lightset_validator, load};
+use futures_util::StreamExt;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tokio_tungstenite::tungstenite::http::HeaderValue;
+use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
+use vemlight::capture::{FrameSource, SourceError, pace};
+use vemlight::envmap::{EnvMap, Projection};
+use vemlight::server::{AppState, Uploads, WsConfig, app};
+
+/// Frames from memory at a fixed rate: `frames` in turn, forever or `limit` times, with an
+/// optional bad frame at a given index.
+struct MemorySource {
+    frames: Vec<EnvMap>,
+    fps: f64,
+    next: Instant,
+    emitted: usize,
+    limit: Option<usize>,
+    bad_at: Option<usize>,
+}
+
+impl MemorySource {
+    fn new(frames: Vec<EnvMap>, fps: f64) -> Self {
+        MemorySource {
+            frames,
+            fps,
+            next: Instant::now(),
+            emitted: 0,
+            limit: None,
+            bad_at: None,
+        }
+    }
+}
+
+impl FrameSource for MemorySource {
+    fn next_frame(&mut self, out: &mut EnvMap) -> Result<bool, SourceError> {
+        if self.limit.is_some_and(|l| self.emitted >= l) {
+            return Ok(false);
+        }
+        pace(&mut self.next, self.fps);
+        let k = self.emitted;
+        self.emitted += 1;
+        if self.bad_at == Some(k) {
+            return Err(SourceError::BadFrame("frame 3 is corrupt (test)".into()));
+        }
+        out.clone_from(&self.frames[k % self.frames.len()]);
+        Ok(true)
+    }
+
+    fn describe(&self) -> String {
+        "memory".into()
+    }
+
+    fn nominal_fps(&self) -> f64 {
+        self.fps
+    }
+}
+
+/// A small lat-long map rotated in yaw by `shift` pixels (a slowly turning scene).
+fn rotated(base: &EnvMap, shift: usize) -> EnvMap {
+    let (w, h) = (base.width, base.height);
+    let mut px = Vec::with_capacity(w * h);
+    for j in 0..h {
+        for i in 0..w {
+            px.push(base.pixels[j * w + (i + shift) % w]);
+        }
+    }
+    EnvMap::from_pixels(w, h, px, Projection::LatLong).unwrap()
+}
+
+fn small_sky() -> EnvMap {
+    let m = load("overcast-plaza.exr");
+    assert_eq!((m.width, m.height), (512, 256));
+    m
+}
+
+struct Server {
+    addr: SocketAddr,
+    hub: Arc<Hub>,
+}
+
+async fn start(source: MemorySource, token: Option<&str>, max_body: usize) -> Server {
+    let hub = Hub::new(64, 16, "memory");
+    pipeline::spawn(Box::new(source), hub.clone(), PipelineConfig::default()).unwrap();
+    let state = AppState::new(
+        hub.clone(),
+        token.map(String::from),
+        Uploads::new(max_body, 16 * 1024 * 1024, 2),
+        WsConfig {
+            ping_interval: Duration::from_secs(30),
+            send_timeout: Duration::from_secs(5),
+        },
+    );
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(async move { axum::serve(listener, app(state)).await.unwrap() });
+    Server { addr, hub }
+}
+
+async fn start_default(fps: f64) -> Server {
+    let base = small_sky();
+    let frames = (0..8).map(|k| rotated(&base, k)).collect();
+    start(MemorySource::new(frames, fps), None, 64 << 20).await
+}
+
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+async fn connect(addr: SocketAddr, query: &str, token: Option<&str>) -> Ws {
+    let mut req = format!("ws://{addr}/v1/stream{query}")
+        .into_client_request()
+        .unwrap();
+    req.headers_mut().insert(
+        "Sec-WebSocket-Protocol",
+        HeaderValue::from_static("vemlight.v1"),
+    );
+    if let Some(t) = token {
+        req.headers_mut().insert(
+            "Authorization",
+            HeaderValue::from_str(&format!("Bearer {t}")).unwrap(),
+        );
+    }
+    let (ws, resp) = tokio_tungstenite::connect_async(req)
+        .await
+        .expect("ws connect");
+    assert_eq!(
+        resp.headers().get("sec-websocket-protocol").unwrap(),
+        "vemlight.v1"
+    );
+    ws
+}
+
+/// The next LightSet from a stream, within `timeout`.
+async fn next_set(ws: &mut Ws, timeout: Duration) -> serde_json::Value {
+    loop {
+        let msg = tokio::time::timeout(timeout, ws.next())
+            .await
+            .expect("a message in time")
+            .expect("stream open")
+            .expect("no ws error");
+        if let Message::Text(t) = msg {
+            return serde_json::from_str(t.as_str()).expect("JSON");
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stream_sends_valid_sets_with_increasing_seq_and_stable_ids() {
+    let s = start_default(30.0).await;
+    let validator = lightset_validator();
+    let mut ws = connect(s.addr, "?lights=32", None).await;
+    let mut last_seq = 0;
+    let mut first_dirs: Option<Vec<serde_json::Value>> = None;
+    for _ in 0..10 {
+        let doc = next_set(&mut ws, Duration::from_secs(5)).await;
+        assert_valid(&validator, &doc);
+        let lights = doc["lights"].as_array().unwrap();
+        assert_eq!(lights.len(), 32);
+        for (k, l) in lights.iter().enumerate() {
+            assert_eq!(l["id"], k, "ids in order");
+        }
+        let seq = doc["seq"].as_u64().unwrap();
+        assert!(seq > last_seq, "seq {seq} after {last_seq}");
+        last_seq = seq;
+        assert_eq!(doc["filter"]["kind"], "binomial");
+        assert_eq!(doc["filter"]["delay_frames"], 4.0);
+        // Ids are stable: a light's direction moves little between frames (the scene turns
+        // by 0.7° per frame).
+        let dirs: Vec<_> = lights.iter().map(|l| l["to_light"].clone()).collect();
+        if let Some(prev) = &first_dirs {
+            let moved = prev
+                .iter()
+                .zip(&dirs)
+                .map(|(a, b)| {
+                    let a: Vec<f64> = a
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .map(|v| v.as_f64().unwrap())
+                        .collect();
+                    let b: Vec<f64> = b
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .map(|v| v.as_f64().unwrap())
+                        .collect();
+                    (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+                        .clamp(-1.0, 1.0)
+                        .acos()
+                        .to_degrees()
+                })
+                .fold(0.0, f64::max);
+            assert!(moved < 30.0, "a light jumped {moved}°");
+        }
+        first_dirs = Some(dirs);
+    }
+    // Two counts at once: the default 64 and another client's 8.
+    let mut ws8 = connect(s.addr, "?lights=8", None).await;
+    let doc = next_set(&mut ws8, Duration::from_secs(5)).await;
+    assert_eq!(doc["lights"].as_array().unwrap().len(), 8);
+    assert_valid(&validator, &doc);
+}
+
+/// A client that stops reading for 2 s does not delay another client's messages.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_client_does_not_delay_others() {
+    let s = start_default(30.0).await;
+    let mut stalled = connect(s.addr, "?lights=256", None).await;
+    let mut live = connect(s.addr, "?lights=256", None).await;
+    // Both get going.
+    next_set(&mut stalled, Duration::from_secs(5)).await;
+    next_set(&mut live, Duration::from_secs(5)).await;
+    // Now `stalled` is not read for 2 s while `live` is; record live's inter-arrival times.
+    let start = Instant::now();
+    let mut arrivals = Vec::new();
+    while start.elapsed() < Duration::from_secs(2) {
+        next_set(&mut live, Duration::from_secs(2)).await;
+        arrivals.push(Instant::now());
+    }
+    let gaps: Vec<f64> = arrivals
+        .windows(2)
+        .map(|w| (w[1] - w[0]).as_secs_f64())
+        .collect();
+    let worst = gaps.iter().cloned().fold(0.0, f64::max);
+    // 30 frames/s: about 60 messages, none held up by the stalled client (allow a few missed
+    // frames on a busy 2-core machine, never the 2 s stall).
+    assert!(
+        arrivals.len() >= 30,
+        "only {} messages in 2 s",
+        arrivals.len()
+    );
+    assert!(worst < 0.5, "longest gap {worst:.3} s");
+    // The stalled client is still served afterwards, with the newest set, not a backlog.
+    let doc = next_set(&mut stalled, Duration::from_secs(5)).await;
+    assert!(doc["seq"].as_u64().unwrap() >= 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hundred_clients_all_receive() {
+    let s = start_default(30.0).await;
+    let mut clients = Vec::new();
+    for k in 0..100 {
+        let q = if k % 2 == 0 { "?lights=16" } else { "" };
+        clients.push(connect(s.addr, q, None).await);
+    }
+    let validator = lightset_validator();
+    let results = futures_util::future::join_all(clients.iter_mut().map(|ws| async {
+        let a = next_set(ws, Duration::from_secs(10)).await;
+        let b = next_set(ws, Duration::from_secs(10)).await;
+        (a, b)
+    }))
+    .await;
+    for (k, (a, b)) in results.iter().enumerate() {
+        assert_valid(&validator, a);
+        let n = if k % 2 == 0 { 16 } else { 64 };
+        assert_eq!(a["lights"].as_array().unwrap().len(), n);
+        assert!(b["seq"].as_u64() > a["seq"].as_u64());
+    }
+    let m = reqwest::get(format!("http://{}/metrics", s.addr))
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(m.contains("vemlight_ws_clients 100"), "{m}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn max_hz_limits_the_rate() {
+    let s = start_default(30.0).await;
+    let mut ws = connect(s.addr, "?lights=8&max_hz=5", None).await;
+    next_set(&mut ws, Duration::from_secs(5)).await;
+    let start = Instant::now();
+    let mut n = 0;
+    while start.elapsed() < Duration::from_secs(2) {
+        next_set(&mut ws, Duration::from_secs(2)).await;
+        n += 1;
+    }
+    assert!((8..=12).contains(&n), "{n} messages in 2 s at max_hz=5");
+}
+
+/// POST of each shared map returns the LightSet `vemlight lights` prints for that file.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn post_returns_the_cli_lightset_for_every_map() {
+    let s = start_default(5.0).await;
+    let client = reqwest::Client::new();
+    let validator = lightset_validator();
+    for name in common::MAPS {
+        let path = data_path(name);
+        let body = std::fs::read(&path).unwrap();
+        let resp = client
+            .post(format!("http://{}/v1/lights?lights=32", s.addr))
+            .header("content-type", "image/x-exr")
+            .body(body)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(resp.status(), 200, "{name}");
+        let doc: serde_json::Value = resp.json().await.unwrap();
+        assert_valid(&validator, &doc);
+        let cli = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+            .args(["lights", path.to_str().unwrap(), "--lights", "32"])
+            .output()
+            .unwrap();
+        assert!(cli.status.success());
+        let cli: serde_json::Value = serde_json::from_slice(&cli.stdout).unwrap();
+        assert_eq!(
+            doc["lights"], cli["lights"],
+            "{name}: lights differ from the CLI's"
+        );
+        assert_eq!(doc["sh9"], cli["sh9"], "{name}");
+        assert_eq!(doc["total_irradiance"], cli["total_irradiance"], "{name}");
+        assert_eq!(
+            doc["diagnostics"]["estimated_error"],
+            cli["diagnostics"]["estimated_error"]
+        );
+    }
+}
+
+async fn problem(resp: reqwest::Response, status: u16) -> serde_json::Value {
+    assert_eq!(resp.status(), status);
+    assert_eq!(
+        resp.headers().get("content-type").unwrap(),
+        "application/problem+json"
+    );
+    let p: serde_json::Value = resp.json().await.unwrap();
+    assert_eq!(p["status"], status);
+    assert!(p["detail"].as_str().is_some_and(|d| !d.is_empty()));
+    p
+}
+
+/// Bad uploads get 400/413/415/422 with a problem document, and the daemon keeps serving.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
+    let s = start(
+        MemorySource::new(vec![small_sky()], 20.0),
+        None,
+        1 << 20, // 1 MiB upload limit
+    )
+    .await;
+    let c = reqwest::Client::new();
+    let url = format!("http://{}/v1/lights", s.addr);
+    let night = std::fs::read(data_path("overcast-plaza.exr")).unwrap();
+
+    // 400: bad parameters (checked before the body).
+    problem(
+        c.post(format!("{url}?lights=0"))
+            .body(night.clone())
+            .send()
+            .await
+            .unwrap(),
+        400,
+    )
+    .await;
+    problem(
+        c.post(format!("{url}?method=magic"))
+            .body(night.clone())
+            .send()
+            .await
+            .unwrap(),
+        400,
+    )
+    .await;
+    problem(
+        c.post(format!("{url}?domain=left"))
+            .body(night.clone())
+            .send()
+            .await
+            .unwrap(),
+        400,
+    )
+    .await;
+    problem(
+        c.post(format!("{url}?projection=cube"))
+            .body(night.clone())
+            .send()
+            .await
+            .unwrap(),
+        400,
+    )
+    .await;
+
+    // 413: declared too large, and streamed past the limit without a length.
+    let big = vec![0u8; 2 << 20];
+    let p = problem(c.post(&url).body(big.clone()).send().await.unwrap(), 413).await;
+    assert!(p["detail"].as_str().unwrap().contains("limit"));
+    let chunks: Vec<Result<Vec<u8>, std::io::Error>> =
+        (0..32).map(|_| Ok(vec![0x76u8; 128 * 1024])).collect();
+    let streamed = reqwest::Body::wrap_stream(futures_util::stream::iter(chunks));
+    problem(c.post(&url).body(streamed).send().await.unwrap(), 413).await;
+    // 413: a small body whose header claims 100 000 × 100 000 pixels.
+    let hdr =
+        b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 100000\n\x01\x01\x01\x80".to_vec();
+    problem(c.post(&url).body(hdr).send().await.unwrap(), 413).await;
+
+    // 415: not an EXR/HDR, a wrong content type, an empty body.
+    problem(c.post(&url).body("hello").send().await.unwrap(), 415).await;
+    problem(
+        c.post(&url)
+            .header("content-type", "application/json")
+            .body(night.clone())
+            .send()
+            .await
+            .unwrap(),
+        415,
+    )
+    .await;
+    problem(c.post(&url).body(Vec::new()).send().await.unwrap(), 415).await;
+
+    // 422: a truncated EXR, and a map of the wrong aspect for the projection asked for.
+    problem(
+        c.post(&url)
+            .body(night[..night.len() / 2].to_vec())
+            .send()
+            .await
+            .unwrap(),
+        422,
+    )
+    .await;
+    problem(
+        c.post(format!("{url}?projection=hemisphere-square"))
+            .body(night.clone())
+            .send()
+            .await
+            .unwrap(),
+        422,
+    )
+    .await;
+
+    // Still serving: a good upload, the stream and health.
+    let ok = c.post(&url).body(night).send().await.unwrap();
+    assert_eq!(ok.status(), 200);
+    let mut ws = connect(s.addr, "", None).await;
+    next_set(&mut ws, Duration::from_secs(5)).await;
+    let h = c
+        .get(format!("http://{}/healthz", s.addr))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(h.status(), 200);
+    let m = c
+        .get(format!("http://{}/metrics", s.addr))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(m.contains("vemlight_http_lights_errors_total 12"), "{m}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_token_is_enforced_everywhere_but_healthz() {
+    let base = small_sky();
+    let s = start(
+        MemorySource::new(vec![base], 20.0),
+        Some("s3cret"),
+        64 << 20,
+    )
+    .await;
+    let c = reqwest::Client::new();
+    let base_url = format!("http://{}", s.addr);
+    // Wait for the first set.
+    for _ in 0..50 {
+        if c.get(format!("{base_url}/healthz"))
+            .send()
+            .await
+            .unwrap()
+            .status()
+            == 200
+        {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    for path in ["/v1/lights/latest", "/metrics"] {
+        let r = c.get(format!("{base_url}{path}")).send().await.unwrap();
+        problem(r, 401).await;
+        let r = c
+            .get(format!("{base_url}{path}"))
+            .bearer_auth("wrong")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 401);
+        let r = c
+            .get(format!("{base_url}{path}"))
+            .bearer_auth("s3cret")
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200, "{path}");
+    }
+    let r = c
+        .post(format!("{base_url}/v1/lights"))
+        .body("x")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 401);
+    // WebSocket: refused without the token, served with it.
+    let req = format!("ws://{}/v1/stream", s.addr)
+        .into_client_request()
+        .unwrap();
+    assert!(tokio_tungstenite::connect_async(req).await.is_err());
+    let mut ws = connect(s.addr, "", Some("s3cret")).await;
+    next_set(&mut ws, Duration::from_secs(5)).await;
+    assert_eq!(
+        c.get(format!("{base_url}/healthz"))
+            .send()
+            .await
+            .unwrap()
+            .status(),
+        200
+    );
+}
+
+/// A bad frame is skipped and counted; when the source ends, the last good set is still served
+/// and /healthz says so.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn source_failures_are_reported_and_the_last_set_is_served() {
+    let mut src = MemorySource::new(vec![small_sky()], 30.0);
+    src.limit = Some(10);
+    src.bad_at = Some(3);
+    let s = start(src, None, 64 << 20).await;
+    let c = reqwest::Client::new();
+    let url = format!("http://{}", s.addr);
+    let mut health = serde_json::Value::Null;
+    for _ in 0..100 {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        health = c
+            .get(format!("{url}/healthz"))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if health["source"]["state"] == "ended" {
+            break;
+        }
+    }
+    assert_eq!(health["source"]["state"], "ended", "{health}");
+    assert_eq!(health["status"], "degraded");
+    assert_eq!(health["serving_last_good_lightset"], true);
+    assert!(
+        health["source"]["last_error"]
+            .as_str()
+            .unwrap()
+            .contains("corrupt")
+    );
+    let latest = c
+        .get(format!("{url}/v1/lights/latest"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(latest.status(), 200);
+    let doc: serde_json::Value = latest.json().await.unwrap();
+    assert_valid(&lightset_validator(), &doc);
+    let m = c
+        .get(format!("{url}/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(m.contains("vemlight_source_errors_total 1"), "{m}");
+    assert!(m.contains("vemlight_frames_captured_total 9"), "{m}");
+    // A new subscriber still gets the last good set at once.
+    let mut ws = connect(s.addr, "", None).await;
+    next_set(&mut ws, Duration::from_secs(2)).await;
+    // Shutdown closes streams cleanly (1001 going away).
+    s.hub.shutdown();
+    let end = tokio::time::timeout(Duration::from_secs(3), async {
+        loop {
+            match ws.next().await {
+                Some(Ok(Message::Close(Some(f)))) => return Some(u16::from(f.code)),
+                Some(Ok(_)) => continue,
+                _ => return None,
+            }
+        }
+    })
+    .await
+    .unwrap();
+    assert_eq!(end, Some(1001));
+}
