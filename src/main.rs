@@ -25,9 +25,100 @@ struct Cli {
 enum Command {
     /// One environment map (OpenEXR or Radiance HDR) → a LightSet on stdout.
     Lights(LightsArgs),
+    /// The capture daemon: frames → filtered lights → WebSocket stream and HTTP endpoints.
+    Serve(Box<ServeArgs>),
+    /// Exits 0 when a daemon answers `GET /healthz` with 200 (for container health checks).
+    Healthcheck {
+        /// host:port of the daemon.
+        #[arg(default_value = "127.0.0.1:7878")]
+        addr: String,
+    },
     /// Per-frame extraction speed of every method (single thread, decoding excluded), as medians
     /// and ratios to median cut measured in the same run.
     Bench(BenchArgs),
+}
+
+#[derive(clap::Args)]
+struct ServeArgs {
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1:7878")]
+    bind: String,
+    /// `synthetic` (a built-in dynamic sky), `stdin` (raw frames), an .exr/.hdr file (re-emitted
+    /// at --fps) or a directory of frames (played in name order at --fps).
+    #[arg(long, default_value = "synthetic")]
+    source: String,
+    /// Frame rate of the synthetic, file and directory sources.
+    #[arg(long, default_value_t = 30.0)]
+    fps: f64,
+    /// Loop a directory source.
+    #[arg(long = "loop")]
+    looping: bool,
+    /// Raw frame width (stdin source).
+    #[arg(long)]
+    width: Option<usize>,
+    /// Raw frame height (stdin source).
+    #[arg(long)]
+    height: Option<usize>,
+    /// Raw pixel layout (stdin source): rgbf32le, rgbf16le or rgb48le.
+    #[arg(long, default_value = "rgbf32le")]
+    pixel: vemlight::capture::stdin::RawPixel,
+    /// Projection of file, directory and stdin frames (see `vemlight lights --help`).
+    #[arg(long, value_parser = Projection::parse)]
+    projection: Option<Projection>,
+    #[arg(long, value_name = "DEG")]
+    fov: Option<f64>,
+    #[arg(long, value_name = "CX,CY,R", value_parser = parse_circle)]
+    circle: Option<(f64, f64, f64)>,
+    /// Light count published when no client asks for another (clients pick theirs with ?lights=N).
+    #[arg(long, default_value_t = 64)]
+    lights: usize,
+    #[arg(long, default_value = "voronoi")]
+    method: Method,
+    /// Default: sphere for lat-long sources, upper for fisheye sources.
+    #[arg(long)]
+    domain: Option<Domain>,
+    /// Temporal filter per light id: binomial (default), sinc or none.
+    #[arg(long, default_value = "binomial")]
+    filter: vemlight::temporal::FilterKind,
+    /// Filter taps (group delay = (taps − 1)/2 frames).
+    #[arg(long, default_value_t = 9)]
+    taps: usize,
+    /// Cut-off of the sinc filter in Hz at --fps.
+    #[arg(long, default_value_t = 3.0)]
+    cutoff_hz: f64,
+    /// Bearer token required by every endpoint but /healthz.
+    #[arg(long, env = "VEMLIGHT_TOKEN", hide_env_values = true)]
+    token: Option<String>,
+    /// Largest accepted POST body in bytes.
+    #[arg(long, default_value_t = 64 * 1024 * 1024)]
+    max_body: usize,
+    /// Largest accepted image (uploads and frames) in pixels.
+    #[arg(long, default_value_t = DEFAULT_MAX_PIXELS)]
+    max_pixels: u64,
+    /// Concurrent POST extractions (default: the number of cores).
+    #[arg(long)]
+    post_workers: Option<usize>,
+    /// Synthetic sky size, WxH (lat-long, 2:1).
+    #[arg(long, default_value = "1024x512", value_parser = parse_size)]
+    sky_size: (usize, usize),
+    /// Synthetic sun speed along its day path, degrees per second.
+    #[arg(long, default_value_t = 1.0)]
+    sun_speed: f64,
+    /// Synthetic cloud cover, 0–1.
+    #[arg(long, default_value_t = 0.3)]
+    clouds: f64,
+    /// Period of the synthetic lamp that switches on and off, seconds (0: no lamp).
+    #[arg(long, default_value_t = 10.0)]
+    switch_period: f64,
+}
+
+fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let (w, h) = s
+        .split_once('x')
+        .ok_or_else(|| format!("expected WxH, got '{s}'"))?;
+    let w = w.trim().parse().map_err(|e| format!("width: {e}"))?;
+    let h = h.trim().parse().map_err(|e| format!("height: {e}"))?;
+    Ok((w, h))
 }
 
 #[derive(clap::Args)]
@@ -107,6 +198,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Lights(args) => run_lights(args),
         Command::Bench(args) => run_bench(args),
+        Command::Serve(args) => run_serve(*args),
+        Command::Healthcheck { addr } => healthcheck(&addr),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -155,6 +248,169 @@ fn run_lights(args: LightsArgs) -> anyhow::Result<()> {
     .context("writing the output")?;
     writeln!(out)?;
     Ok(())
+}
+
+/// `vemlight serve`: builds the source, starts the pipeline threads and serves until SIGINT or
+/// SIGTERM.
+fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
+    use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
+    use vemlight::server::{AppState, Uploads, WsConfig, app, shutdown_signal};
+    use vemlight::temporal::{FilterKind, FilterSpec};
+
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "info".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+
+    if !(args.fps.is_finite() && args.fps > 0.0) {
+        bail!("--fps must be a positive number, got {}", args.fps);
+    }
+    if !(1..=vemlight::sampling::N_MAX).contains(&args.lights) {
+        bail!("--lights must be between 1 and {}", vemlight::sampling::N_MAX);
+    }
+    let filter = FilterSpec {
+        kind: args.filter,
+        taps: if args.filter == FilterKind::None { 1 } else { args.taps },
+        cutoff: args.cutoff_hz / args.fps,
+    };
+    filter.validate().map_err(anyhow::Error::msg)?;
+    let projection = fisheye_overrides(args.projection, args.fov, args.circle)?;
+    let source = make_source(&args, projection)?;
+    let addr: std::net::SocketAddr = args
+        .bind
+        .parse()
+        .with_context(|| format!("--bind '{}' is not an address like 127.0.0.1:7878", args.bind))?;
+
+    let hub = Hub::new(args.lights, 16, &source.describe());
+    let cfg = PipelineConfig {
+        method: args.method,
+        domain: args.domain,
+        default_lights: args.lights,
+        filter,
+        sh9: true,
+        max_light_counts: 16,
+    };
+    let workers = args
+        .post_workers
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(2, |n| n.get()));
+    let state = AppState::new(
+        hub.clone(),
+        args.token.clone(),
+        Uploads::new(args.max_body, args.max_pixels, workers),
+        WsConfig::default(),
+    );
+    let runtime = tokio::runtime::Runtime::new()?;
+    runtime.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(addr)
+            .await
+            .with_context(|| format!("cannot listen on {addr}"))?;
+        pipeline::spawn(source, hub.clone(), cfg)?;
+        tracing::info!(
+            "vemlight serving on http://{addr} (stream: ws://{addr}/v1/stream){}",
+            if state.token.is_some() { ", token required" } else { "" }
+        );
+        let hub_for_signal = hub.clone();
+        axum::serve(listener, app(state))
+            .with_graceful_shutdown(async move {
+                shutdown_signal().await;
+                tracing::info!("shutting down");
+                hub_for_signal.shutdown();
+            })
+            .await?;
+        anyhow::Ok(())
+    })?;
+    // The capture thread may be blocked reading stdin; it ends with the process.
+    runtime.shutdown_timeout(std::time::Duration::from_secs(2));
+    Ok(())
+}
+
+/// The frame source `--source` names.
+fn make_source(
+    args: &ServeArgs,
+    projection: Option<Projection>,
+) -> anyhow::Result<Box<dyn vemlight::capture::FrameSource>> {
+    use vemlight::capture::files::{DirectorySource, FileSource};
+    use vemlight::capture::stdin::RawSource;
+    use vemlight::capture::synthetic::{SwitchLight, SyntheticConfig, SyntheticSource};
+    Ok(match args.source.as_str() {
+        "synthetic" => {
+            let (width, height) = args.sky_size;
+            if width != 2 * height || height < 8 {
+                bail!("--sky-size must be 2:1 and at least 16x8, got {width}x{height}");
+            }
+            let defaults = SyntheticConfig::default();
+            let cfg = SyntheticConfig {
+                width,
+                height,
+                sun_speed_deg_per_s: args.sun_speed,
+                clouds: args.clouds.clamp(0.0, 1.0),
+                switch_light: (args.switch_period > 0.0).then(|| SwitchLight {
+                    period_s: args.switch_period,
+                    ..defaults.switch_light.clone().unwrap_or_default()
+                }),
+                ..defaults
+            };
+            Box::new(SyntheticSource::new(cfg, args.fps))
+        }
+        "stdin" | "-" => {
+            let (Some(w), Some(h)) = (args.width, args.height) else {
+                bail!("--source stdin needs --width and --height");
+            };
+            let projection = projection.unwrap_or_else(|| Projection::guess(w, h));
+            Box::new(RawSource::new(
+                std::io::stdin(),
+                w,
+                h,
+                args.pixel,
+                projection,
+                "stdin",
+            )?)
+        }
+        path => {
+            let path = std::path::Path::new(path);
+            if path.is_dir() {
+                Box::new(DirectorySource::open(
+                    path,
+                    projection,
+                    args.max_pixels,
+                    args.fps,
+                    args.looping,
+                )?)
+            } else if path.exists() {
+                Box::new(FileSource::open(path, projection, args.max_pixels, args.fps)?)
+            } else {
+                bail!(
+                    "--source '{}': expected synthetic, stdin, a file or a directory",
+                    path.display()
+                );
+            }
+        }
+    })
+}
+
+/// `vemlight healthcheck`: a plain HTTP/1.0 GET of /healthz.
+fn healthcheck(addr: &str) -> anyhow::Result<()> {
+    use std::io::Read;
+    use std::net::TcpStream;
+    let timeout = std::time::Duration::from_secs(3);
+    let sock: std::net::SocketAddr = addr
+        .parse()
+        .with_context(|| format!("'{addr}' is not host:port"))?;
+    let mut s = TcpStream::connect_timeout(&sock, timeout)
+        .with_context(|| format!("cannot connect to {addr}"))?;
+    s.set_read_timeout(Some(timeout))?;
+    write!(s, "GET /healthz HTTP/1.0\r\nHost: {addr}\r\n\r\n")?;
+    let mut reply = String::new();
+    s.read_to_string(&mut reply)?;
+    let status = reply.lines().next().unwrap_or("");
+    if status.split_whitespace().nth(1) == Some("200") {
+        Ok(())
+    } else {
+        bail!("unhealthy: {status}")
+    }
 }
 
 /// `vemlight bench`.

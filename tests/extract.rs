@@ -328,3 +328,17 @@ fn bad_pixels_are_clamped_and_counted() {
     assert_eq!(set.diagnostics.clamped_pixels, 3);
     assert!(set.total_irradiance.iter().all(|c| c.is_finite()));
 }
+
+/// Several light counts from one pass give exactly what separate extractions give.
+#[test]
+fn extract_many_matches_separate_extractions() {
+    let map = load("city.exr");
+    for method in METHODS {
+        let mut shared = Extractor::new();
+        let many = shared.extract_many(&map, Domain::Sphere, method, &[8, 64, 16]);
+        for (ex, n) in many.iter().zip([8, 64, 16]) {
+            let alone = Extractor::new().extract(&map, &opts(n, Domain::Sphere, method));
+            assert_eq!(ex.lights, alone.lights, "{method:?} N={n}");
+        }
+    }
+}

@@ -1,0 +1,180 @@
+//! Daemon figures (issue 3): `cargo bench --bench serve`.
+//!
+//! 1. End-to-end latency from a frame entering the pipeline to a WebSocket client receiving its
+//!    LightSet, on loopback, p50 and p99, with 1 and 100 clients, frames at 30/s. The temporal
+//!    filter's signal delay is not part of it (it is (taps−1)/2 frames, stated in each LightSet).
+//! 2. Sustained frames/s of the synthetic source at 1024×512 → 256 lights on one core (render,
+//!    extract, filter, serialise, in one thread).
+//! 3. POST /v1/lights requests/s for a 1024×512 EXR with 4 concurrent clients.
+
+use futures_util::StreamExt;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio_tungstenite::tungstenite::Message;
+use vemlight::capture::FrameSource;
+use vemlight::capture::files::FileSource;
+use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
+use vemlight::capture::synthetic::{SyntheticConfig, SyntheticSky};
+use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
+use vemlight::eval::speed::median;
+use vemlight::lights::{Extractor, Method};
+use vemlight::lightset::{LightSet, now_ns};
+use vemlight::sampling::Domain;
+use vemlight::server::{AppState, Uploads, WsConfig, app};
+use vemlight::temporal::{FilterSpec, TemporalFilter};
+
+const MAP: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/sunrise.exr");
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let k = ((sorted.len() - 1) as f64 * p).round() as usize;
+    sorted[k]
+}
+
+async fn start_server(fps: f64) -> (std::net::SocketAddr, Arc<Hub>) {
+    let source = FileSource::open(std::path::Path::new(MAP), None, DEFAULT_MAX_PIXELS, fps)
+        .expect("tests/data/sunrise.exr");
+    let hub = Hub::new(64, 16, &source.describe());
+    pipeline::spawn(Box::new(source), hub.clone(), PipelineConfig::default()).unwrap();
+    let state = AppState::new(
+        hub.clone(),
+        None,
+        Uploads::new(64 << 20, DEFAULT_MAX_PIXELS, 4),
+        WsConfig::default(),
+    );
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(async move { axum::serve(listener, app(state)).await.unwrap() });
+    (addr, hub)
+}
+
+/// Latencies (ms) seen by `clients` clients over `secs` seconds.
+async fn latency(addr: std::net::SocketAddr, clients: usize, secs: f64) -> Vec<f64> {
+    let mut tasks = Vec::new();
+    for _ in 0..clients {
+        let url = format!("ws://{addr}/v1/stream");
+        tasks.push(tokio::spawn(async move {
+            let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
+            let mut out = Vec::new();
+            let start = Instant::now();
+            // Skip the first message: it may be an older set sent on connect.
+            let mut first = true;
+            while start.elapsed().as_secs_f64() < secs {
+                let Ok(Some(Ok(msg))) =
+                    tokio::time::timeout(Duration::from_secs(2), ws.next()).await
+                else {
+                    break;
+                };
+                let received = now_ns();
+                if let Message::Text(t) = msg {
+                    let doc: serde_json::Value = serde_json::from_str(t.as_str()).unwrap();
+                    let captured = doc["t_capture_ns"].as_u64().unwrap();
+                    if !first {
+                        out.push((received.saturating_sub(captured)) as f64 * 1e-6);
+                    }
+                    first = false;
+                }
+            }
+            out
+        }));
+    }
+    let mut all = Vec::new();
+    for t in tasks {
+        all.extend(t.await.unwrap());
+    }
+    all.sort_by(f64::total_cmp);
+    all
+}
+
+fn sustained_synthetic(frames: usize) -> (f64, f64) {
+    let mut sky = SyntheticSky::new(SyntheticConfig::default());
+    let mut map = sky.render(0.0);
+    let mut ex = Extractor::new();
+    let mut filter = TemporalFilter::new(&FilterSpec::default());
+    let mut render_s = 0.0;
+    let start = Instant::now();
+    for k in 0..frames {
+        let t = Instant::now();
+        sky.render_into(k as f64 / 30.0, &mut map);
+        render_s += t.elapsed().as_secs_f64();
+        let exs = ex.extract_many(&map, Domain::Sphere, Method::Voronoi, &[256]);
+        let lights = filter.filter(&exs[0].lights);
+        let set = LightSet::new(lights, &map, Method::Voronoi, Domain::Sphere, "synthetic", 256, exs[0].side);
+        std::hint::black_box(serde_json::to_string(&set).unwrap());
+    }
+    let total = start.elapsed().as_secs_f64();
+    (frames as f64 / total, render_s / frames as f64)
+}
+
+async fn post_throughput(addr: std::net::SocketAddr, concurrency: usize, secs: f64) -> (f64, Vec<f64>) {
+    let body = std::fs::read(MAP).unwrap();
+    let client = reqwest::Client::new();
+    let start = Instant::now();
+    let mut tasks = Vec::new();
+    for _ in 0..concurrency {
+        let (c, b) = (client.clone(), body.clone());
+        let url = format!("http://{addr}/v1/lights?lights=64");
+        tasks.push(tokio::spawn(async move {
+            let mut times = Vec::new();
+            while start.elapsed().as_secs_f64() < secs {
+                let t = Instant::now();
+                let r = c.post(&url).body(b.clone()).send().await.unwrap();
+                assert_eq!(r.status(), 200);
+                r.bytes().await.unwrap();
+                times.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            times
+        }));
+    }
+    let mut times = Vec::new();
+    for t in tasks {
+        times.extend(t.await.unwrap());
+    }
+    (times.len() as f64 / start.elapsed().as_secs_f64(), times)
+}
+
+fn main() {
+    // `cargo test` runs benches in test mode with `--bench` absent: do nothing then.
+    if !std::env::args().any(|a| a == "--bench") {
+        return;
+    }
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let (addr, hub) = start_server(30.0).await;
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        println!("end-to-end latency, frame captured → LightSet received (64 lights, 30 frames/s, loopback)");
+        for clients in [1, 100] {
+            let l = latency(addr, clients, 8.0).await;
+            println!(
+                "  {clients:>3} client(s): p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {} messages",
+                percentile(&l, 0.5),
+                percentile(&l, 0.99),
+                l.last().copied().unwrap_or(f64::NAN),
+                l.len()
+            );
+        }
+        let m = &hub.metrics;
+        println!(
+            "  frames captured {}, processed {}, dropped {}",
+            m.frames_captured.load(std::sync::atomic::Ordering::Relaxed),
+            m.frames_processed.load(std::sync::atomic::Ordering::Relaxed),
+            m.frames_dropped.load(std::sync::atomic::Ordering::Relaxed)
+        );
+        hub.shutdown();
+
+        let (addr, hub) = start_server(1.0).await;
+        let (rps, mut times) = post_throughput(addr, 4, 10.0).await;
+        println!(
+            "POST /v1/lights, 1024x512 DWAB EXR, 64 lights, 4 concurrent clients: {rps:.1} requests/s, median {:.1} ms per request",
+            median(&mut times)
+        );
+        hub.shutdown();
+    });
+    let (fps, render) = sustained_synthetic(300);
+    println!(
+        "synthetic source 1024x512 → 256 lights, one thread (render + extract + filter + JSON): {fps:.1} frames/s (sky render {:.2} ms/frame)",
+        render * 1e3
+    );
+}
