@@ -15,7 +15,7 @@ use vemlight::capture::FrameSource;
 use vemlight::capture::files::FileSource;
 use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
 use vemlight::capture::synthetic::{SyntheticConfig, SyntheticSky};
-use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
+use vemlight::envmap::DEFAULT_MAX_PIXELS;
 use vemlight::eval::speed::median;
 use vemlight::lights::{Extractor, Method};
 use vemlight::lightset::{LightSet, now_ns};
@@ -101,14 +101,26 @@ fn sustained_synthetic(frames: usize) -> (f64, f64) {
         render_s += t.elapsed().as_secs_f64();
         let exs = ex.extract_many(&map, Domain::Sphere, Method::Voronoi, &[256]);
         let lights = filter.filter(&exs[0].lights);
-        let set = LightSet::new(lights, &map, Method::Voronoi, Domain::Sphere, "synthetic", 256, exs[0].side);
+        let set = LightSet::new(
+            lights,
+            &map,
+            Method::Voronoi,
+            Domain::Sphere,
+            "synthetic",
+            256,
+            exs[0].side,
+        );
         std::hint::black_box(serde_json::to_string(&set).unwrap());
     }
     let total = start.elapsed().as_secs_f64();
     (frames as f64 / total, render_s / frames as f64)
 }
 
-async fn post_throughput(addr: std::net::SocketAddr, concurrency: usize, secs: f64) -> (f64, Vec<f64>) {
+async fn post_throughput(
+    addr: std::net::SocketAddr,
+    concurrency: usize,
+    secs: f64,
+) -> (f64, Vec<f64>) {
     let body = std::fs::read(MAP).unwrap();
     let client = reqwest::Client::new();
     let start = Instant::now();

@@ -207,11 +207,13 @@ pub struct InputRepairs {
     pub non_finite_pixels: u64,
     /// Pixels with a negative channel (clamped to 0).
     pub negative_pixels: u64,
+    /// Pixels changed for either reason (a pixel can have both).
+    pub changed_pixels: u64,
 }
 
 impl InputRepairs {
     pub fn clamped_pixels(&self) -> u64 {
-        self.non_finite_pixels + self.negative_pixels
+        self.changed_pixels
     }
 }
 
@@ -407,6 +409,8 @@ pub fn luminance64(rgb: [f64; 3]) -> f64 {
 pub fn sanitize(pixels: &mut [[f32; 3]]) -> InputRepairs {
     let mut r = InputRepairs::default();
     for p in pixels.iter_mut() {
+        let bad = p.iter().any(|c| !c.is_finite() || *c < 0.0);
+        r.changed_pixels += bad as u64;
         if p.iter().any(|c| !c.is_finite()) {
             r.non_finite_pixels += 1;
             for c in p.iter_mut() {
@@ -563,6 +567,8 @@ mod tests {
         let r = sanitize(&mut px);
         assert_eq!(r.non_finite_pixels, 2);
         assert_eq!(r.negative_pixels, 2);
+        // [inf, −2, 0] is both: three pixels changed.
+        assert_eq!(r.clamped_pixels(), 3);
         assert!(px.iter().flatten().all(|c| c.is_finite() && *c >= 0.0));
         assert_eq!(px[0], [1.0, 2.0, 3.0]);
     }

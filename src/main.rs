@@ -259,8 +259,7 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
 
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| "info".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -269,20 +268,29 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
         bail!("--fps must be a positive number, got {}", args.fps);
     }
     if !(1..=vemlight::sampling::N_MAX).contains(&args.lights) {
-        bail!("--lights must be between 1 and {}", vemlight::sampling::N_MAX);
+        bail!(
+            "--lights must be between 1 and {}",
+            vemlight::sampling::N_MAX
+        );
     }
     let filter = FilterSpec {
         kind: args.filter,
-        taps: if args.filter == FilterKind::None { 1 } else { args.taps },
+        taps: if args.filter == FilterKind::None {
+            1
+        } else {
+            args.taps
+        },
         cutoff: args.cutoff_hz / args.fps,
     };
     filter.validate().map_err(anyhow::Error::msg)?;
     let projection = fisheye_overrides(args.projection, args.fov, args.circle)?;
     let source = make_source(&args, projection)?;
-    let addr: std::net::SocketAddr = args
-        .bind
-        .parse()
-        .with_context(|| format!("--bind '{}' is not an address like 127.0.0.1:7878", args.bind))?;
+    let addr: std::net::SocketAddr = args.bind.parse().with_context(|| {
+        format!(
+            "--bind '{}' is not an address like 127.0.0.1:7878",
+            args.bind
+        )
+    })?;
 
     let hub = Hub::new(args.lights, 16, &source.describe());
     let cfg = PipelineConfig {
@@ -310,7 +318,11 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
         pipeline::spawn(source, hub.clone(), cfg)?;
         tracing::info!(
             "vemlight serving on http://{addr} (stream: ws://{addr}/v1/stream){}",
-            if state.token.is_some() { ", token required" } else { "" }
+            if state.token.is_some() {
+                ", token required"
+            } else {
+                ""
+            }
         );
         let hub_for_signal = hub.clone();
         axum::serve(listener, app(state))
@@ -349,7 +361,7 @@ fn make_source(
                 clouds: args.clouds.clamp(0.0, 1.0),
                 switch_light: (args.switch_period > 0.0).then(|| SwitchLight {
                     period_s: args.switch_period,
-                    ..defaults.switch_light.clone().unwrap_or_default()
+                    ..SwitchLight::default()
                 }),
                 ..defaults
             };
@@ -380,7 +392,12 @@ fn make_source(
                     args.looping,
                 )?)
             } else if path.exists() {
-                Box::new(FileSource::open(path, projection, args.max_pixels, args.fps)?)
+                Box::new(FileSource::open(
+                    path,
+                    projection,
+                    args.max_pixels,
+                    args.fps,
+                )?)
             } else {
                 bail!(
                     "--source '{}': expected synthetic, stdin, a file or a directory",

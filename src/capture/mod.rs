@@ -1,7 +1,8 @@
 //! Frame sources and the capture pipeline: the first and the last stage of the daemon.
 //!
-//! Input: a [`FrameSource`] (the synthetic sky, a file, a directory of frames, raw frames on
-//! stdin). Output: filtered LightSet documents, published per light count on `watch` channels
+//! Input: a [`FrameSource`] ([`synthetic`], the built-in dynamic sky `vemlight serve` uses by
+//! default so the daemon runs with no camera and no data; a file; a directory of frames; raw
+//! frames on stdin). Output: filtered LightSet documents, published per light count on `watch` channels
 //! (latest-state semantics: a slow reader skips frames and never holds up the capture loop).
 //!
 //! Threads: one reads frames into a one-slot mailbox (a frame not yet taken when the next arrives
@@ -12,6 +13,7 @@
 pub mod files;
 pub mod pipeline;
 pub mod stdin;
+pub mod synthetic;
 
 use crate::envmap::{EnvMap, InputError};
 
