@@ -6,7 +6,7 @@
 use crate::envmap::{EnvMap, Projection};
 use crate::lights::error::IrradianceReference;
 use crate::lights::{
-    ExtractOptions, Extractor, Light, Method, PrimaryLight, primary_light, sh, total_irradiance,
+    ExtractOptions, Extractor, Light, Method, PrimaryLight, primary_light, total_irradiance,
 };
 use crate::sampling::{Domain, N_MAX};
 use crate::temporal::FilterInfo;
@@ -231,9 +231,7 @@ pub fn lightset_for_map(
             (ex, err, None)
         }
     };
-    let sh9 = req
-        .sh9
-        .then(|| sh9_floats(extractor.domain_image().expect("resampled")));
+    let sh9 = if req.sh9 { extractor.sh9() } else { None };
     let mut set = LightSet::new(
         ex.lights, map, req.method, domain, source, req.lights, ex.side,
     );
@@ -252,10 +250,6 @@ pub fn lightset_for_map(
     set
 }
 
-/// The `sh9` field of a domain image: 27 floats.
-pub fn sh9_floats(image: &crate::sampling::DomainImage) -> Vec<f32> {
-    sh::project(image).iter().map(|&c| c as f32).collect()
-}
 
 /// The set as a glTF 2.0 document with KHR_lights_punctual: one directional light and one node per
 /// light. A glTF directional light shines along its node's −Z, so the node's rotation maps −Z onto

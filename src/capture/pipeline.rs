@@ -4,7 +4,7 @@
 use super::{FrameSource, SourceError};
 use crate::envmap::{EnvMap, Projection};
 use crate::lights::{Extractor, Method};
-use crate::lightset::{LightSet, Timings, default_domain, now_ns, sh9_floats};
+use crate::lightset::{LightSet, Timings, default_domain, now_ns};
 use crate::metrics::Metrics;
 use crate::sampling::{Domain, N_MAX};
 use crate::temporal::{FilterInfo, FilterSpec, TemporalFilter};
@@ -368,10 +368,7 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             m.stage_resample.record_secs(first.timings.resample_s);
             m.stage_warp.record_secs(first.timings.warp_s);
         }
-        let sh9 = cfg
-            .sh9
-            .then(|| extractor.domain_image().map(sh9_floats))
-            .flatten();
+        let sh9 = if cfg.sh9 { extractor.sh9() } else { None };
         // Forget the filter state of light counts nobody asks for any more.
         filters.retain(|n, _| counts.contains(n));
         for (&n, ex) in counts.iter().zip(extractions) {

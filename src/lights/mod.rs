@@ -127,6 +127,7 @@ pub struct Extractor {
     seeds: Vec<Vec3>,
     accum: Vec<CellAccum>,
     median_cut: median_cut::MedianCut,
+    sh: sh::ShProjector,
 }
 
 /// Per-light sums over its cell.
@@ -145,6 +146,12 @@ impl Extractor {
     /// The domain image of the last extraction (for SH, error estimates and tests).
     pub fn domain_image(&self) -> Option<&DomainImage> {
         self.image.as_ref()
+    }
+
+    /// L2 radiance SH of the last resampled frame (see [`sh`]), as the 27 floats of `sh9`.
+    pub fn sh9(&mut self) -> Option<Vec<f32>> {
+        let image = self.image.as_ref()?;
+        Some(self.sh.project(image).iter().map(|&c| c as f32).collect())
     }
 
     /// Resamples `map` into the domain square (cached table), leaving it in `self.image`.
