@@ -120,7 +120,9 @@ impl Default for SwitchLight {
             period_s: 10.0,
             // West-ish, behind the viewer, 20° up: away from the sun's arc.
             to_light: DVec3::new(-0.55, 0.34, 0.76).normalize(),
-            radiance: 40.0,
+            // ∫ L dω = 2000 × 8.6 msr ≈ 17: a quarter of the clear noon sky's ∫ L dω (≈ 70 in
+            // model units; the sun's is ≈ 840), so switching it moves the lights by day as well.
+            radiance: 2000.0,
             radius_deg: 3.0,
         }
     }
@@ -309,11 +311,15 @@ impl SyntheticSky {
 
     /// Radiance of the sun disk at time t (linear RGB, model units): the calibrated exo-atmospheric
     /// radiance × Beer-Lambert transmittance along the Kasten-Young air mass (so it reddens and
-    /// fades toward the horizon) × the cloud transmittance in front of it. The part of the disk
-    /// below the horizon is hidden by the ground, so the map holds radiance × the visible part of
-    /// [`Self::sun_solid_angle`].
+    /// fades toward the horizon) × the cloud transmittance in front of it; 0 once the whole disk
+    /// has set. The part of the disk below the horizon is hidden by the ground, so the map holds
+    /// radiance × the visible part of [`Self::sun_solid_angle`]. Scale: the sun's ∫ L dω is
+    /// [`SUN_TO_SKY_RATIO`] × the clear sky's at noon (≈ 840 vs ≈ 70 model units at turbidity 3).
     pub fn sun_radiance(&self, t: f64) -> [f32; 3] {
         let dir = self.sun_direction(t);
+        if dir.y <= -(0.5 * SUN_ANGULAR_DIAMETER_DEG).to_radians().sin() {
+            return [0.0; 3];
+        }
         let elev = dir.y.clamp(-1.0, 1.0).asin().to_degrees();
         let tr = self.transmittance(elev);
         let clouds = 1.0 - SUN_CLOUD_OPACITY * self.cover_at(&self.cover_soft, dir, t);
@@ -432,8 +438,8 @@ impl SyntheticSky {
         #[cfg(not(test))]
         let draw_sun = true;
         let sun_radius = (0.5 * SUN_ANGULAR_DIAMETER_DEG).to_radians();
-        if draw_sun && sun.y > -sun_radius.sin() {
-            let radiance = self.sun_radiance(t);
+        let radiance = self.sun_radiance(t);
+        if draw_sun && radiance != [0.0; 3] {
             let e = self.splat_cap(&mut out.pixels, sun, sun_radius, radiance, true);
             for c in 0..3 {
                 ground_irradiance[c] += e[c];
@@ -1225,6 +1231,43 @@ mod tests {
         assert_eq!(a.pixels, b.pixels, "deterministic");
         let c = s.render(20.0);
         assert_ne!(a.pixels, c.pixels);
+    }
+
+    /// Prints the energy budget of the default sky (`-- --ignored --nocapture`).
+    #[test]
+    #[ignore]
+    fn energy_budget() {
+        let mut s = SyntheticSky::new(SyntheticConfig {
+            switch_light: None,
+            clouds: 0.0,
+            ..SyntheticConfig::default()
+        });
+        let rise = s.next_sunrise(0.0);
+        for (name, t) in [
+            ("sunrise+10 s", rise + 10.0),
+            ("morning", rise + 45.0),
+            ("noon", rise + 90.0),
+            ("midnight", rise + 270.0),
+        ] {
+            let m = s.render(t);
+            let all = luminance(upper_integral(&m));
+            s.draw_sun = false;
+            let sky = luminance(upper_integral(&s.render(t)));
+            s.draw_sun = true;
+            let ground = EnvMap::luminance(m.pixels[m.pixels.len() - 1]);
+            eprintln!(
+                "{name}: elev {:.1}°, sky ∫L dω {sky:.4}, sun {:.4}, ground radiance {ground:.4}, \
+                 sun radiance {:?}",
+                s.sun_elevation_deg(t),
+                all - sky,
+                s.sun_radiance(t)
+            );
+        }
+        let lamp = SwitchLight::default();
+        eprintln!(
+            "lamp ∫L dω {:.4}",
+            lamp.radiance as f64 * cap_solid_angle(lamp.radius_deg.to_radians())
+        );
     }
 
     /// This thread's time on a CPU (Linux schedstat, ns): robust to other processes sharing cores.
