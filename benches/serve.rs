@@ -106,6 +106,7 @@ fn sustained_synthetic(frames: usize) -> (f64, f64) {
     let mut sky = SyntheticSky::new(SyntheticConfig::default());
     let mut map = sky.render(0.0);
     let mut ex = Extractor::new();
+    ex.set_threads(1); // one core
     let mut filter = TemporalFilter::new(&FilterSpec::default());
     let mut render_s = 0.0;
     let start = Instant::now();

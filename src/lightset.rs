@@ -250,7 +250,6 @@ pub fn lightset_for_map(
     set
 }
 
-
 /// The set as a glTF 2.0 document with KHR_lights_punctual: one directional light and one node per
 /// light. A glTF directional light shines along its node's −Z, so the node's rotation maps −Z onto
 /// −to_light. `color` is the irradiance divided by its largest channel and `intensity` that channel

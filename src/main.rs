@@ -299,7 +299,7 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
         default_lights: args.lights,
         filter,
         sh9: true,
-        max_light_counts: 16,
+        ..PipelineConfig::default()
     };
     let workers = args
         .post_workers
@@ -316,6 +316,7 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
             .await
             .with_context(|| format!("cannot listen on {addr}"))?;
         pipeline::spawn(source, hub.clone(), cfg)?;
+        let addr = listener.local_addr()?;
         tracing::info!(
             "vemlight serving on http://{addr} (stream: ws://{addr}/v1/stream){}",
             if state.token.is_some() {

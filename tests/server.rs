@@ -593,3 +593,57 @@ async fn source_failures_are_reported_and_the_last_set_is_served() {
     .unwrap();
     assert_eq!(end, Some(1001));
 }
+
+/// The main job as a user runs it: `vemlight serve` on the built-in synthetic sky streams valid
+/// sets at once, and SIGTERM stops it cleanly with exit code 0.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
+    use std::io::BufRead;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(["serve", "--bind", "127.0.0.1:0", "--sky-size", "256x128"])
+        .env("RUST_LOG", "info")
+        .env("NO_COLOR", "1")
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(line);
+        }
+    });
+    let addr: SocketAddr = loop {
+        let line = rx
+            .recv_timeout(Duration::from_secs(20))
+            .expect("a startup line");
+        if let Some(rest) = line.split("serving on http://").nth(1) {
+            break rest.split_whitespace().next().unwrap().parse().unwrap();
+        }
+    };
+    let mut ws = connect(addr, "?lights=16", None).await;
+    let validator = lightset_validator();
+    let a = next_set(&mut ws, Duration::from_secs(10)).await;
+    let b = next_set(&mut ws, Duration::from_secs(10)).await;
+    assert_valid(&validator, &a);
+    assert_eq!(a["source"], "synthetic:256x128");
+    assert_eq!(a["lights"].as_array().unwrap().len(), 16);
+    assert!(b["frame"].as_u64() > a["frame"].as_u64());
+    let kill = std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "serve did not stop on SIGTERM");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "{status:?}");
+}

@@ -133,3 +133,50 @@ impl FrameSource for DirectorySource {
         self.fps
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(path: &Path, value: f32) {
+        exr::prelude::write_rgb_file(path, 8, 4, |_, _| (value, value, value)).unwrap();
+    }
+
+    #[test]
+    fn directory_plays_in_name_order_skips_bad_frames_and_loops() {
+        let dir = std::env::temp_dir().join(format!("vemlight-dir-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        write(&dir.join("frame-002.exr"), 2.0);
+        write(&dir.join("frame-001.exr"), 1.0);
+        std::fs::write(dir.join("frame-003.exr"), b"not an exr").unwrap();
+        write(&dir.join("frame-004.exr"), 4.0);
+        std::fs::write(dir.join("notes.txt"), b"ignored").unwrap();
+
+        let blank = || EnvMap::from_pixels(2, 1, vec![[0.0; 3]; 2], Projection::LatLong).unwrap();
+        let mut out = blank();
+        let mut src = DirectorySource::open(&dir, None, 1 << 20, 1000.0, false).unwrap();
+        let mut seen = Vec::new();
+        loop {
+            match src.next_frame(&mut out) {
+                Ok(true) => seen.push(out.pixels[0][0]),
+                Ok(false) => break,
+                Err(SourceError::BadFrame(e)) => {
+                    assert!(e.contains("frame-003"), "{e}");
+                    seen.push(-1.0);
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+        assert_eq!(seen, vec![1.0, 2.0, -1.0, 4.0]);
+
+        let mut looping = DirectorySource::open(&dir, None, 1 << 20, 1000.0, true).unwrap();
+        let values: Vec<f32> = (0..8)
+            .filter_map(|_| match looping.next_frame(&mut out) {
+                Ok(true) => Some(out.pixels[0][0]),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(values, vec![1.0, 2.0, 4.0, 1.0, 2.0, 4.0]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -26,6 +26,8 @@ pub struct PipelineConfig {
     pub sh9: bool,
     /// Most distinct light counts served at once (each costs one assignment pass per frame).
     pub max_light_counts: usize,
+    /// Threads for the resampling pass, the largest part of a frame's latency.
+    pub threads: usize,
 }
 
 impl Default for PipelineConfig {
@@ -37,6 +39,7 @@ impl Default for PipelineConfig {
             filter: FilterSpec::default(),
             sh9: true,
             max_light_counts: 16,
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get().min(4)),
         }
     }
 }
@@ -334,6 +337,7 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox) {
 
 fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, source: &str) {
     let mut extractor = Extractor::new();
+    extractor.set_threads(cfg.threads);
     let mut filters: HashMap<usize, TemporalFilter> = HashMap::new();
     let mut seqs: HashMap<usize, u64> = HashMap::new();
     let filter_info = FilterInfo::new(&cfg.filter, fps);

@@ -128,6 +128,7 @@ pub struct Extractor {
     accum: Vec<CellAccum>,
     median_cut: median_cut::MedianCut,
     sh: sh::ShProjector,
+    threads: usize,
 }
 
 /// Per-light sums over its cell.
@@ -154,6 +155,14 @@ impl Extractor {
         Some(self.sh.project(image).iter().map(|&c| c as f32).collect())
     }
 
+    /// Threads for the resampling pass (the rest is single-threaded); default 1.
+    pub fn set_threads(&mut self, threads: usize) {
+        self.threads = threads.max(1);
+        if let Some(r) = &mut self.resampler {
+            r.set_threads(self.threads);
+        }
+    }
+
     /// Resamples `map` into the domain square (cached table), leaving it in `self.image`.
     pub fn resample(&mut self, map: &EnvMap, domain: Domain, side: Option<usize>) -> &DomainImage {
         if !self
@@ -161,13 +170,9 @@ impl Extractor {
             .as_ref()
             .is_some_and(|r| r.fits(map, domain, side))
         {
-            self.resampler = Some(Resampler::new(
-                map.projection,
-                map.width,
-                map.height,
-                domain,
-                side,
-            ));
+            let mut r = Resampler::new(map.projection, map.width, map.height, domain, side);
+            r.set_threads(self.threads);
+            self.resampler = Some(r);
         }
         let r = self.resampler.as_mut().expect("just set");
         match &mut self.image {

@@ -47,9 +47,11 @@ impl ShProjector {
             let sr = image.texel_solid_angle();
             self.basis = (0..side * side)
                 .map(|t| {
-                    let d = image
-                        .domain
-                        .square_to_dir(DomainImage::texel_centre(side, t % side, t / side));
+                    let d = image.domain.square_to_dir(DomainImage::texel_centre(
+                        side,
+                        t % side,
+                        t / side,
+                    ));
                     basis(d).map(|y| (y * sr) as f32)
                 })
                 .collect();
@@ -57,11 +59,7 @@ impl ShProjector {
         }
         let mut out = [0.0f64; 27];
         // Sum row by row in f32, then into f64: a row is short enough for f32.
-        for (rad_row, basis_row) in image
-            .radiance
-            .chunks(side)
-            .zip(self.basis.chunks(side))
-        {
+        for (rad_row, basis_row) in image.radiance.chunks(side).zip(self.basis.chunks(side)) {
             let mut acc = [0.0f32; 27];
             for (p, y) in rad_row.iter().zip(basis_row) {
                 for k in 0..9 {

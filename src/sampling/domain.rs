@@ -128,9 +128,30 @@ pub struct Resampler {
     entries: Vec<PixelEntry>,
     /// Runs of consecutive pixels with entries: (first pixel, first entry, length).
     runs: Vec<(u32, u32, u32)>,
-    /// Per-texel accumulators (radiance, moment) side by side in one cache line, reused
-    /// between frames.
+    /// Per-texel accumulators (radiance, moment) side by side in one cache line, one set per
+    /// thread, reused between frames.
     accum: Vec<[Vec3A; 2]>,
+    threads: usize,
+}
+
+/// Deposits each pixel of `runs` into its texel: radiance × weight and luminance × weighted
+/// direction, in 4-wide f32 registers (energy exact up to f32 rounding).
+fn scatter(
+    runs: &[(u32, u32, u32)],
+    entries: &[PixelEntry],
+    pixels: &[[f32; 3]],
+    accum: &mut [[Vec3A; 2]],
+) {
+    let lum = Vec3A::new(0.2126, 0.7152, 0.0722);
+    for &(first_pixel, first_entry, len) in runs {
+        let (p0, e0, len) = (first_pixel as usize, first_entry as usize, len as usize);
+        for (e, p) in entries[e0..e0 + len].iter().zip(&pixels[p0..p0 + len]) {
+            let p = Vec3A::from_array(*p);
+            let a = &mut accum[e.texel as usize];
+            a[0] += p * e.weight;
+            a[1] += Vec3A::from_array(e.weighted_dir) * p.dot(lum);
+        }
+    }
 }
 
 /// Where one source pixel goes.
@@ -188,6 +209,7 @@ impl Resampler {
             entries,
             runs,
             accum: Vec::new(),
+            threads: 1,
         }
     }
 
@@ -208,24 +230,39 @@ impl Resampler {
             "map does not fit the table"
         );
         let n = self.side * self.side;
-        // Accumulate in 4-wide f32 registers (one SIMD multiply-add per pixel and quantity):
-        // energy is exact up to f32 rounding.
+        let threads = self.threads.clamp(1, 8).min(self.runs.len().max(1));
         self.accum.clear();
-        self.accum.resize(n, [Vec3A::ZERO; 2]);
-        let lum = Vec3A::new(0.2126, 0.7152, 0.0722);
-        for &(first_pixel, first_entry, len) in &self.runs {
-            let (p0, e0, len) = (first_pixel as usize, first_entry as usize, len as usize);
-            for (e, p) in self.entries[e0..e0 + len]
-                .iter()
-                .zip(&map.pixels[p0..p0 + len])
-            {
-                let t = e.texel as usize;
-                let p = Vec3A::from_array(*p);
-                let a = &mut self.accum[t];
-                a[0] += p * e.weight;
-                a[1] += Vec3A::from_array(e.weighted_dir) * p.dot(lum);
+        self.accum.resize(n * threads, [Vec3A::ZERO; 2]);
+        if threads == 1 {
+            scatter(&self.runs, &self.entries, &map.pixels, &mut self.accum);
+        } else {
+            // Split the runs into `threads` parts of about equal pixel count, each scattering into
+            // its own accumulator, then add the accumulators up.
+            let per = self.entries.len().div_ceil(threads);
+            let mut bounds = vec![0];
+            for (k, r) in self.runs.iter().enumerate() {
+                if r.1 as usize >= per * bounds.len() {
+                    bounds.push(k);
+                }
+            }
+            bounds.resize(threads, self.runs.len());
+            bounds.push(self.runs.len());
+            let (runs, entries, pixels) = (&self.runs, &self.entries, &map.pixels);
+            std::thread::scope(|scope| {
+                for (k, acc) in self.accum.chunks_mut(n).enumerate() {
+                    let part = &runs[bounds[k]..bounds[k + 1]];
+                    scope.spawn(move || scatter(part, entries, pixels, acc));
+                }
+            });
+            let (first, rest) = self.accum.split_at_mut(n);
+            for other in rest.chunks(n) {
+                for (a, b) in first.iter_mut().zip(other) {
+                    a[0] += b[0];
+                    a[1] += b[1];
+                }
             }
         }
+        self.accum.truncate(n);
         out.domain = self.domain;
         out.side = self.side;
         out.radiance.clear();
@@ -237,6 +274,11 @@ impl Resampler {
         out.luminance.clear();
         out.luminance
             .extend(out.radiance.iter().map(|&p| EnvMap::luminance(p)));
+    }
+
+    /// Threads used by [`resample_into`](Self::resample_into) (1 by default).
+    pub fn set_threads(&mut self, threads: usize) {
+        self.threads = threads.max(1);
     }
 
     /// Resamples into a new image.
@@ -257,6 +299,31 @@ impl Resampler {
 mod tests {
     use super::*;
     use std::f64::consts::PI;
+
+    #[test]
+    fn threads_give_the_same_image() {
+        let map = EnvMap::from_pixels(
+            128,
+            64,
+            (0..128 * 64)
+                .map(|k| [k as f32 * 0.01, 1.0, (k % 7) as f32])
+                .collect(),
+            Projection::LatLong,
+        )
+        .unwrap();
+        let mut one = Resampler::new(Projection::LatLong, 128, 64, Domain::Sphere, None);
+        let a = one.resample(&map);
+        for threads in [2, 3] {
+            let mut r = Resampler::new(Projection::LatLong, 128, 64, Domain::Sphere, None);
+            r.set_threads(threads);
+            let b = r.resample(&map);
+            for (x, y) in a.radiance.iter().zip(&b.radiance) {
+                for c in 0..3 {
+                    assert!((x[c] - y[c]).abs() <= 1e-5 * x[c].abs().max(1.0));
+                }
+            }
+        }
+    }
 
     #[test]
     fn constant_latlong_fills_every_texel_evenly() {
