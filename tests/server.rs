@@ -647,3 +647,105 @@ async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
     };
     assert!(status.success(), "{status:?}");
 }
+
+/// Raw frames on stdin: the daemon serves them, and when the pipe closes it keeps serving the last
+/// set and says so in /healthz.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn serve_reads_raw_frames_from_stdin() {
+    use std::io::{BufRead, Write};
+    let (w, h) = (64usize, 32usize);
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args([
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--source",
+            "stdin",
+            "--width",
+            "64",
+            "--height",
+            "32",
+            "--pixel",
+            "rgbf32le",
+            "--filter",
+            "none",
+        ])
+        .env("NO_COLOR", "1")
+        .stdin(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(line);
+        }
+    });
+    let addr: SocketAddr = loop {
+        let line = rx
+            .recv_timeout(Duration::from_secs(20))
+            .expect("a startup line");
+        if let Some(rest) = line.split("serving on http://").nth(1) {
+            break rest.split_whitespace().next().unwrap().parse().unwrap();
+        }
+    };
+    // Three frames: a bright patch in the upper half (sky), constant 0.1 elsewhere.
+    let mut stdin = child.stdin.take().unwrap();
+    for _ in 0..3 {
+        let mut bytes = Vec::with_capacity(w * h * 12);
+        for j in 0..h {
+            for i in 0..w {
+                let v: f32 = if (4..8).contains(&j) && (40..44).contains(&i) {
+                    50.0
+                } else {
+                    0.1
+                };
+                for _ in 0..3 {
+                    bytes.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+        }
+        stdin.write_all(&bytes).unwrap();
+    }
+    drop(stdin); // end of stream
+    let c = reqwest::Client::new();
+    let mut health = serde_json::Value::Null;
+    for _ in 0..100 {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let r = c
+            .get(format!("http://{addr}/healthz"))
+            .send()
+            .await
+            .unwrap();
+        health = r.json().await.unwrap();
+        if health["source"]["state"] == "ended" && health["latest_frame"] == 2 {
+            break;
+        }
+    }
+    assert_eq!(health["source"]["state"], "ended", "{health}");
+    assert_eq!(health["source"]["frames_captured"], 3);
+    let doc: serde_json::Value = c
+        .get(format!("http://{addr}/v1/lights/latest"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_valid(&lightset_validator(), &doc);
+    assert_eq!(doc["diagnostics"]["projection"], "latlong");
+    // The patch is at u ≈ 0.66, v ≈ 0.19: above the horizon, toward +X/−Z.
+    let p = &doc["primary"]["to_light"];
+    assert!(
+        p[1].as_f64().unwrap() > 0.5 && p[0].as_f64().unwrap() > 0.3,
+        "{p}"
+    );
+    let _ = std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    let _ = child.wait();
+}
