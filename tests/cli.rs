@@ -350,3 +350,40 @@ fn radiance_hdr_input_works() {
     let want = 2.0 * std::f64::consts::PI * (3.0 + 0.1);
     assert!((total - want).abs() / want < 1e-3, "{total} vs {want}");
 }
+
+#[test]
+fn serve_configuration_errors_exit_with_a_message() {
+    for (args, needle) in [
+        (vec!["serve", "--bind", "nonsense"], "not an address"),
+        (
+            vec!["serve", "--source", "/no/such/frames"],
+            "expected synthetic, stdin",
+        ),
+        (
+            vec!["serve", "--source", "stdin"],
+            "needs --width and --height",
+        ),
+        (
+            vec!["serve", "--fps", "0"],
+            "--fps must be a positive number",
+        ),
+        (
+            vec!["serve", "--lights", "0"],
+            "--lights must be between 1 and 1024",
+        ),
+        (
+            vec!["serve", "--filter", "sinc", "--cutoff-hz", "20"],
+            "cut-off",
+        ),
+        (vec!["serve", "--sky-size", "100x100"], "2:1"),
+        (vec!["serve", "--filter", "kalman"], "unknown filter"),
+    ] {
+        let out = vemlight(&args);
+        assert_fails_with(&out, needle);
+    }
+    // A port already taken is a clear error too.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = taken.local_addr().unwrap().to_string();
+    let out = vemlight(&["serve", "--bind", &addr, "--sky-size", "64x32"]);
+    assert_fails_with(&out, "cannot listen on");
+}

@@ -749,3 +749,35 @@ async fn serve_reads_raw_frames_from_stdin() {
         .status();
     let _ = child.wait();
 }
+
+/// A source faster than extraction: frames are dropped (newest wins) and counted, and every
+/// captured frame is either processed or dropped.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_source_faster_than_extraction_drops_and_counts_frames() {
+    let mut src = MemorySource::new(vec![load("sunrise.exr")], 2000.0);
+    src.limit = Some(300);
+    let s = start(src, None, 64 << 20).await;
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        if s.hub.health().state == "ended" {
+            break;
+        }
+        assert!(Instant::now() < deadline, "source did not end");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await; // let the last frame be processed
+    use std::sync::atomic::Ordering::Relaxed;
+    let m = &s.hub.metrics;
+    let (captured, processed, dropped) = (
+        m.frames_captured.load(Relaxed),
+        m.frames_processed.load(Relaxed),
+        m.frames_dropped.load(Relaxed),
+    );
+    assert_eq!(captured, 300);
+    assert!(dropped > 0, "no frame dropped at 2000 frames/s");
+    assert_eq!(
+        processed + dropped,
+        captured,
+        "{processed} + {dropped} != {captured}"
+    );
+}
