@@ -165,8 +165,7 @@ impl Projection {
                 centre,
                 radius,
             } => {
-                let (cx, cy) = centre.unwrap_or((w * 0.5, h * 0.5));
-                let radius = radius.unwrap_or(0.5 * w.min(h));
+                let (cx, cy, radius) = image_circle(centre, radius, w, h);
                 let dx = (i as f64 + 0.5 - cx) / radius;
                 let dy = (j as f64 + 0.5 - cy) / radius;
                 let r = (dx * dx + dy * dy).sqrt();
@@ -198,6 +197,18 @@ impl Projection {
             }
         }
     }
+}
+
+/// A fisheye's image circle in pixels, with the defaults filled in: centred, radius half the
+/// shorter side.
+fn image_circle(
+    centre: Option<(f64, f64)>,
+    radius: Option<f64>,
+    w: f64,
+    h: f64,
+) -> (f64, f64, f64) {
+    let (cx, cy) = centre.unwrap_or((w * 0.5, h * 0.5));
+    (cx, cy, radius.unwrap_or(0.5 * w.min(h)))
 }
 
 /// Counts of what had to be repaired in the input.
@@ -323,8 +334,7 @@ impl EnvMap {
                 centre,
                 radius,
             } => {
-                let (cx, cy) = centre.unwrap_or((w * 0.5, h * 0.5));
-                let radius = radius.unwrap_or(0.5 * w.min(h));
+                let (cx, cy, radius) = image_circle(centre, radius, w, h);
                 let theta = dir.y.clamp(-1.0, 1.0).acos();
                 let theta_max = 0.5 * fov_deg.to_radians();
                 let r = match lens {

@@ -62,13 +62,9 @@ struct ServeArgs {
     /// Raw pixel layout (stdin source): rgbf32le, rgbf16le or rgb48le.
     #[arg(long, default_value = "rgbf32le")]
     pixel: vemlight::capture::stdin::RawPixel,
-    /// Projection of file, directory and stdin frames (see `vemlight lights --help`).
-    #[arg(long, value_parser = Projection::parse)]
-    projection: Option<Projection>,
-    #[arg(long, value_name = "DEG")]
-    fov: Option<f64>,
-    #[arg(long, value_name = "CX,CY,R", value_parser = parse_circle)]
-    circle: Option<(f64, f64, f64)>,
+    /// Projection of file, directory and stdin frames.
+    #[command(flatten)]
+    projection: ProjectionArgs,
     /// Light count published when no client asks for another (clients pick theirs with ?lights=N).
     #[arg(long, default_value_t = 64)]
     lights: usize,
@@ -152,6 +148,22 @@ struct LightsArgs {
     /// voronoi (default), paper, or median-cut.
     #[arg(long, default_value = "voronoi")]
     method: Method,
+    #[command(flatten)]
+    projection: ProjectionArgs,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Json)]
+    format: Format,
+    /// Refuse images with more pixels than this.
+    #[arg(long, default_value_t = DEFAULT_MAX_PIXELS)]
+    max_pixels: u64,
+    /// Leave out the L2 spherical harmonics.
+    #[arg(long)]
+    no_sh: bool,
+}
+
+/// How the input's pixels map to directions.
+#[derive(clap::Args)]
+struct ProjectionArgs {
     /// latlong, fisheye-equidistant, fisheye-equisolid or hemisphere-square.
     /// Default: latlong for 2:1 images, fisheye-equidistant otherwise.
     #[arg(long, value_parser = Projection::parse)]
@@ -162,15 +174,6 @@ struct LightsArgs {
     /// Fisheye image circle: centre and radius in pixels.
     #[arg(long, value_name = "CX,CY,R", value_parser = parse_circle)]
     circle: Option<(f64, f64, f64)>,
-    /// Output format.
-    #[arg(long, value_enum, default_value_t = Format::Json)]
-    format: Format,
-    /// Refuse images with more pixels than this.
-    #[arg(long, default_value_t = DEFAULT_MAX_PIXELS)]
-    max_pixels: u64,
-    /// Leave out the L2 spherical harmonics.
-    #[arg(long)]
-    no_sh: bool,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -219,7 +222,7 @@ fn main() -> ExitCode {
 
 /// `vemlight lights FILE`.
 fn run_lights(args: LightsArgs) -> anyhow::Result<()> {
-    let projection = fisheye_overrides(args.projection, args.fov, args.circle)?;
+    let projection = args.projection.resolve()?;
     let req = LightRequest {
         lights: args.lights,
         domain: args.domain,
@@ -283,7 +286,7 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
         cutoff: args.cutoff_hz / args.fps,
     };
     filter.validate().map_err(anyhow::Error::msg)?;
-    let projection = fisheye_overrides(args.projection, args.fov, args.circle)?;
+    let projection = args.projection.resolve()?;
     let source = make_source(&args, projection)?;
     let addr: std::net::SocketAddr = args.bind.parse().with_context(|| {
         format!(
@@ -465,31 +468,32 @@ fn run_bench(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Applies --fov and --circle to a fisheye projection (and refuses them for any other).
-fn fisheye_overrides(
-    projection: Option<Projection>,
-    fov: Option<f64>,
-    circle: Option<(f64, f64, f64)>,
-) -> anyhow::Result<Option<Projection>> {
-    if fov.is_none() && circle.is_none() {
-        return Ok(projection);
-    }
-    let base = projection.unwrap_or(Projection::parse("fisheye").expect("known"));
-    match base {
-        Projection::Fisheye {
-            lens,
-            fov_deg,
-            centre,
-            radius,
-        } => Ok(Some(Projection::Fisheye {
-            lens,
-            fov_deg: fov.unwrap_or(fov_deg),
-            centre: circle.map(|c| (c.0, c.1)).or(centre),
-            radius: circle.map(|c| c.2).or(radius),
-        })),
-        other => bail!(
-            "--fov and --circle apply to fisheye projections, not {}",
-            other.name()
-        ),
+impl ProjectionArgs {
+    /// The projection asked for, with --fov and --circle applied to a fisheye (and refused for
+    /// any other projection).
+    fn resolve(&self) -> anyhow::Result<Option<Projection>> {
+        if self.fov.is_none() && self.circle.is_none() {
+            return Ok(self.projection);
+        }
+        let base = self
+            .projection
+            .unwrap_or(Projection::parse("fisheye").expect("known"));
+        match base {
+            Projection::Fisheye {
+                lens,
+                fov_deg,
+                centre,
+                radius,
+            } => Ok(Some(Projection::Fisheye {
+                lens,
+                fov_deg: self.fov.unwrap_or(fov_deg),
+                centre: self.circle.map(|c| (c.0, c.1)).or(centre),
+                radius: self.circle.map(|c| c.2).or(radius),
+            })),
+            other => bail!(
+                "--fov and --circle apply to fisheye projections, not {}",
+                other.name()
+            ),
+        }
     }
 }

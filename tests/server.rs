@@ -594,15 +594,16 @@ async fn source_failures_are_reported_and_the_last_set_is_served() {
     assert_eq!(end, Some(1001));
 }
 
-/// The main job as a user runs it: `vemlight serve` on the built-in synthetic sky streams valid
-/// sets at once, and SIGTERM stops it cleanly with exit code 0.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
+/// Starts `vemlight serve --bind 127.0.0.1:0 ARGS` (stdin piped) and reads the address it
+/// listens on from its log.
+fn spawn_serve(args: &[&str]) -> (std::process::Child, SocketAddr) {
     use std::io::BufRead;
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["serve", "--bind", "127.0.0.1:0", "--sky-size", "256x128"])
+        .args(["serve", "--bind", "127.0.0.1:0"])
+        .args(args)
         .env("RUST_LOG", "info")
         .env("NO_COLOR", "1")
+        .stdin(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
@@ -616,7 +617,7 @@ async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
             let _ = tx.send(line);
         }
     });
-    let addr: SocketAddr = loop {
+    let addr = loop {
         let line = rx
             .recv_timeout(Duration::from_secs(20))
             .expect("a startup line");
@@ -624,6 +625,14 @@ async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
             break rest.split_whitespace().next().unwrap().parse().unwrap();
         }
     };
+    (child, addr)
+}
+
+/// The main job as a user runs it: `vemlight serve` on the built-in synthetic sky streams valid
+/// sets at once, and SIGTERM stops it cleanly with exit code 0.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
+    let (mut child, addr) = spawn_serve(&["--sky-size", "256x128"]);
     let mut ws = connect(addr, "?lights=16", None).await;
     let validator = lightset_validator();
     let a = next_set(&mut ws, Duration::from_secs(10)).await;
@@ -652,47 +661,12 @@ async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
 /// set and says so in /healthz.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn serve_reads_raw_frames_from_stdin() {
-    use std::io::{BufRead, Write};
+    use std::io::Write;
     let (w, h) = (64usize, 32usize);
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args([
-            "serve",
-            "--bind",
-            "127.0.0.1:0",
-            "--source",
-            "stdin",
-            "--width",
-            "64",
-            "--height",
-            "32",
-            "--pixel",
-            "rgbf32le",
-            "--filter",
-            "none",
-        ])
-        .env("NO_COLOR", "1")
-        .stdin(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        for line in std::io::BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-        {
-            let _ = tx.send(line);
-        }
-    });
-    let addr: SocketAddr = loop {
-        let line = rx
-            .recv_timeout(Duration::from_secs(20))
-            .expect("a startup line");
-        if let Some(rest) = line.split("serving on http://").nth(1) {
-            break rest.split_whitespace().next().unwrap().parse().unwrap();
-        }
-    };
+    let (mut child, addr) = spawn_serve(&[
+        "--source", "stdin", "--width", "64", "--height", "32", "--pixel", "rgbf32le", "--filter",
+        "none",
+    ]);
     // Three frames: a bright patch in the upper half (sky), constant 0.1 elsewhere.
     let mut stdin = child.stdin.take().unwrap();
     for _ in 0..3 {

@@ -350,15 +350,31 @@ impl Extractor {
                 }
             }
         }
+        // Move each light to its cell's luminance-weighted centroid; a dark or empty cell keeps
+        // its seed.
+        self.cell_lights(image, |a, seed| {
+            a.weighted_dir.try_normalize().unwrap_or(seed)
+        })
+    }
+
+    /// One light per accumulated cell, in id order, pointing where `dir(cell, seed)` says.
+    fn cell_lights(
+        &self,
+        image: &DomainImage,
+        dir: impl Fn(&CellAccum, Vec3) -> Vec3,
+    ) -> Vec<Light> {
         let texel_sr = image.texel_solid_angle() as f32;
         self.accum
             .iter()
             .zip(&self.seeds)
             .enumerate()
             .map(|(k, (a, &seed))| {
-                // Move to the luminance-weighted centroid; a dark or empty cell keeps its seed.
-                let dir = a.weighted_dir.try_normalize().unwrap_or(seed);
-                make_light(k, dir, a.energy * texel_sr, a.texels as f32 * texel_sr)
+                make_light(
+                    k,
+                    dir(a, seed),
+                    a.energy * texel_sr,
+                    a.texels as f32 * texel_sr,
+                )
             })
             .collect()
     }
@@ -386,15 +402,7 @@ impl Extractor {
                 a.texels += 1;
             }
         }
-        let texel_sr = image.texel_solid_angle() as f32;
-        self.accum
-            .iter()
-            .zip(&self.seeds)
-            .enumerate()
-            .map(|(k, (a, &seed))| {
-                make_light(k, seed, a.energy * texel_sr, a.texels as f32 * texel_sr)
-            })
-            .collect()
+        self.cell_lights(image, |_, seed| seed)
     }
 }
 

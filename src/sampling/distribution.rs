@@ -197,13 +197,7 @@ fn lerp_cdf(cdf: &[f64], x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn lcg(state: &mut u64) -> f64 {
-        *state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*state >> 11) as f64) / ((1u64 << 53) as f64)
-    }
+    use crate::sampling::test_util::lcg;
 
     fn random_grid(w: usize, h: usize, seed: u64) -> Vec<f32> {
         let mut s = seed;

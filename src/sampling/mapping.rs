@@ -187,14 +187,7 @@ pub fn invert_equal_area_sphere(w: DVec3) -> DVec2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A small deterministic generator so tests need no extra crate.
-    fn lcg(state: &mut u64) -> f64 {
-        *state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((*state >> 11) as f64) / ((1u64 << 53) as f64)
-    }
+    use crate::sampling::test_util::lcg;
 
     #[test]
     fn round_trip_both_domains() {
