@@ -457,6 +457,31 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
     assert!(m.contains("vemlight_http_lights_errors_total 12"), "{m}");
 }
 
+/// The declared length is checked before any of the body is read: a client that sends only the
+/// headers of a 10 GB upload gets its 413 at once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn content_length_is_refused_before_reading() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let s = start(MemorySource::new(vec![small_sky()], 5.0), None, 1 << 20).await;
+    let mut tcp = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    tcp.write_all(
+        b"POST /v1/lights HTTP/1.1\r\nHost: x\r\nContent-Type: image/x-exr\r\n\
+          Content-Length: 10000000000\r\n\r\n",
+    )
+    .await
+    .unwrap();
+    let mut reply = vec![0u8; 4096];
+    let started = Instant::now();
+    let n = tokio::time::timeout(Duration::from_secs(2), tcp.read(&mut reply))
+        .await
+        .expect("an answer without sending the body")
+        .unwrap();
+    let reply = String::from_utf8_lossy(&reply[..n]);
+    assert!(reply.starts_with("HTTP/1.1 413"), "{reply}");
+    assert!(reply.contains("application/problem+json"), "{reply}");
+    assert!(started.elapsed() < Duration::from_secs(1));
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_token_is_enforced_everywhere_but_healthz() {
     let base = small_sky();

@@ -23,6 +23,7 @@ use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
+use futures_util::StreamExt;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -262,22 +263,17 @@ async fn post_lights_inner(
     headers: &HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
-    // Parameters first: a bad request is refused before its body is read.
-    let req = LightRequest {
-        lights: parse_param(&q, "lights")?.unwrap_or(64),
-        domain: parse_param::<Domain>(&q, "domain")?,
-        method: parse_param::<Method>(&q, "method")?.unwrap_or_default(),
-        max_error: parse_param(&q, "max_error")?,
-        estimate_error: true,
-        sh9: true,
+    let t = Instant::now();
+    let mut stream = body.into_data_stream();
+    // Parameters first: a bad request is refused without reading its body (the drain only lets
+    // a client that is still sending read the answer).
+    let (req, projection) = match upload_request(&q, headers) {
+        Ok(r) => r,
+        Err(e) => {
+            drain(&mut stream).await;
+            return Err(e);
+        }
     };
-    req.validate().map_err(ApiError::BadRequest)?;
-    let projection = q
-        .get("projection")
-        .map(|p| Projection::parse(p).map_err(ApiError::BadRequest))
-        .transpose()?;
-    acceptable_content_type(headers)?;
-
     let limits = &state.uploads;
     let declared = headers
         .get(header::CONTENT_LENGTH)
@@ -286,20 +282,25 @@ async fn post_lights_inner(
     if let Some(len) = declared
         && len > limits.max_body as u64
     {
+        drain(&mut stream).await;
         return Err(ApiError::TooLarge(format!(
             "body of {len} bytes exceeds the limit of {} bytes",
             limits.max_body
         )));
     }
-    let t = Instant::now();
-    let bytes = axum::body::to_bytes(body, limits.max_body)
-        .await
-        .map_err(|_| {
-            ApiError::TooLarge(format!(
-                "body exceeds the limit of {} bytes (or the upload broke off)",
+    let mut bytes = Vec::with_capacity(declared.unwrap_or(0) as usize);
+    while let Some(chunk) = stream.next().await {
+        let chunk =
+            chunk.map_err(|e| ApiError::BadRequest(format!("the upload broke off: {e}")))?;
+        if bytes.len() + chunk.len() > limits.max_body {
+            drain(&mut stream).await;
+            return Err(ApiError::TooLarge(format!(
+                "body exceeds the limit of {} bytes",
                 limits.max_body
-            ))
-        })?;
+            )));
+        }
+        bytes.extend_from_slice(&chunk);
+    }
     if bytes.is_empty() {
         return Err(ApiError::UnsupportedMedia(
             "empty body: send the raw EXR or HDR file".into(),
@@ -339,6 +340,47 @@ async fn post_lights_inner(
     .map_err(|e| ApiError::Internal(format!("extraction task failed: {e}")))??;
     let json = serde_json::to_string(&set).map_err(|e| ApiError::Internal(e.to_string()))?;
     Ok(json_response(json))
+}
+
+/// The query and headers of an upload, checked.
+fn upload_request(
+    q: &HashMap<String, String>,
+    headers: &HeaderMap,
+) -> Result<(LightRequest, Option<Projection>), ApiError> {
+    let req = LightRequest {
+        lights: parse_param(q, "lights")?.unwrap_or(64),
+        domain: parse_param::<Domain>(q, "domain")?,
+        method: parse_param::<Method>(q, "method")?.unwrap_or_default(),
+        max_error: parse_param(q, "max_error")?,
+        estimate_error: true,
+        sh9: true,
+    };
+    req.validate().map_err(ApiError::BadRequest)?;
+    let projection = q
+        .get("projection")
+        .map(|p| Projection::parse(p).map_err(ApiError::BadRequest))
+        .transpose()?;
+    acceptable_content_type(headers)?;
+    Ok((req, projection))
+}
+
+/// At most this much of a refused upload is read and discarded — for at most [`DRAIN_TIME`], and
+/// only while data keeps arriving ([`DRAIN_IDLE`]) — so that a client still sending sees the error
+/// instead of a reset connection; beyond that the connection is closed.
+const DRAIN_BYTES: usize = 16 << 20;
+const DRAIN_TIME: Duration = Duration::from_secs(2);
+const DRAIN_IDLE: Duration = Duration::from_millis(100);
+
+async fn drain(stream: &mut axum::body::BodyDataStream) {
+    let deadline = tokio::time::Instant::now() + DRAIN_TIME;
+    let mut seen = 0usize;
+    while seen < DRAIN_BYTES {
+        let idle = (tokio::time::Instant::now() + DRAIN_IDLE).min(deadline);
+        match tokio::time::timeout_at(idle, stream.next()).await {
+            Ok(Some(Ok(chunk))) => seen += chunk.len(),
+            _ => break,
+        }
+    }
 }
 
 /// Resolves when SIGINT or SIGTERM arrives.
