@@ -10,7 +10,7 @@ use vemlight::lights::{ExtractOptions, Extractor, Method, total_irradiance};
 use vemlight::lightset::{LightRequest, lightset_for_map};
 use vemlight::sampling::{Domain, Resampler};
 
-const METHODS: [Method; 3] = [Method::Voronoi, Method::Paper, Method::MedianCut];
+const METHODS: [Method; 4] = Method::ALL;
 
 fn opts(lights: usize, domain: Domain, method: Method) -> ExtractOptions {
     ExtractOptions {
