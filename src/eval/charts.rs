@@ -79,7 +79,7 @@ pub fn error_vs_lights(
         let c = colour(name);
         let pts: Vec<(f64, Option<super::accuracy::Spread>)> = counts
             .iter()
-            .map(|&n| (n as f64, spread(rows, domain, name, Some(n), &value)))
+            .map(|&n| (n as f64, spread(rows, domain, name, Some(n), value)))
             .collect();
         let band: Vec<(f64, f64)> = pts
             .iter()
@@ -109,7 +109,7 @@ pub fn error_vs_lights(
             .map_err(plot_err)?;
     }
     if glossy.is_none()
-        && let Some(s) = spread(rows, domain, SH_NAME, None, &value)
+        && let Some(s) = spread(rows, domain, SH_NAME, None, value)
     {
         let c = colour(SH_NAME);
         let y = s.median.max(lo);
@@ -186,8 +186,8 @@ pub fn error_vs_time(
         let line: Vec<(f64, f64)> = counts
             .iter()
             .filter_map(|&n| {
-                let e = spread(rows, domain, name, Some(n), &err)?;
-                let t = spread(rows, domain, name, Some(n), &time)?;
+                let e = spread(rows, domain, name, Some(n), err)?;
+                let t = spread(rows, domain, name, Some(n), time)?;
                 Some((t.median, e.median.max(lo)))
             })
             .collect();
@@ -213,8 +213,8 @@ pub fn error_vs_time(
         }
     }
     if let (Some(e), Some(t)) = (
-        spread(rows, domain, SH_NAME, None, &err),
-        spread(rows, domain, SH_NAME, None, &time),
+        spread(rows, domain, SH_NAME, None, err),
+        spread(rows, domain, SH_NAME, None, time),
     ) {
         let c = colour(SH_NAME);
         chart
