@@ -332,3 +332,34 @@ pub fn to_csv(rows: &[TemporalRow]) -> String {
     }
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flicker_ratio_is_one_for_the_truth_and_counts_jitter() {
+        let truth: Vec<Vec<f64>> = (0..20).map(|t| vec![t as f64, 2.0 * t as f64]).collect();
+        assert!((flicker_ratio(&truth, &truth) - 1.0).abs() < 1e-12);
+        // ±2 alternating jitter on ramps of slope 1 and 2: of the 19 steps, 10 are slope − 4 and 9
+        // slope + 4, so the total variation goes from 19·3 = 57 to (10·3 + 9·5) + (10·2 + 9·6) = 149.
+        let jittery: Vec<Vec<f64>> = truth
+            .iter()
+            .enumerate()
+            .map(|(t, v)| {
+                let j = if t % 2 == 0 { 2.0 } else { -2.0 };
+                v.iter().map(|x| x + j).collect()
+            })
+            .collect();
+        let r = flicker_ratio(&jittery, &truth);
+        assert!((r - 149.0 / 57.0).abs() < 1e-9, "{r}");
+        // A lagging but exact copy of a step has the same total variation.
+        let step: Vec<Vec<f64>> = (0..20)
+            .map(|t| vec![if t < 10 { 0.0 } else { 1.0 }])
+            .collect();
+        let smooth: Vec<Vec<f64>> = (0..20)
+            .map(|t| vec![((t as f64 - 10.0) / 4.0).clamp(0.0, 1.0)])
+            .collect();
+        assert!((flicker_ratio(&smooth, &step) - 1.0).abs() < 1e-12);
+    }
+}
