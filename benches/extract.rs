@@ -1,6 +1,8 @@
 //! Criterion benchmarks of per-frame light extraction (decoding excluded, single thread) and of EXR
-//! decoding, on the real sunrise map: `cargo bench --bench extract`. `vemlight bench` prints the
-//! same cases as medians with ratios to median cut.
+//! decoding, on the real sunrise map: `cargo bench --bench extract`. Group `extract-256` has every
+//! method (voronoi, paper, median-cut, inverse-cdf) at 256 lights on a 640×480 fisheye and the
+//! 1024×512 lat-long view: the reproducible source of the time axis of docs/eval/error_vs_time.svg.
+//! `vemlight bench` prints the same cases as medians with ratios to median cut.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;

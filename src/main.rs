@@ -36,6 +36,29 @@ enum Command {
     /// Per-frame extraction speed of every method (single thread, decoding excluded), as medians
     /// and ratios to median cut measured in the same run.
     Bench(BenchArgs),
+    /// Accuracy × speed charts, temporal stability and the hard-case table of every method
+    /// (writes docs/eval/ and the generated sections of docs/EVALUATION.md).
+    Eval(EvalArgs),
+}
+
+#[derive(clap::Args)]
+struct EvalArgs {
+    /// Directory of lat-long .exr/.hdr maps.
+    #[arg(long, default_value = "tests/data")]
+    maps: PathBuf,
+    /// Output directory for CSV, SVG and markdown tables.
+    #[arg(long, default_value = "docs/eval")]
+    out: PathBuf,
+    /// Document whose generated sections (<!-- BEGIN name --> … <!-- END name -->) are rewritten;
+    /// skipped when it does not exist.
+    #[arg(long, default_value = "docs/EVALUATION.md")]
+    doc: PathBuf,
+    /// Fewer light counts, one timing run, 16 frames per sequence: a smoke run.
+    #[arg(long)]
+    quick: bool,
+    /// Also evaluate lights restricted to the upper hemisphere.
+    #[arg(long)]
+    upper: bool,
 }
 
 #[derive(clap::Args)]
@@ -145,7 +168,7 @@ struct LightsArgs {
     /// Default: sphere for lat-long input, upper otherwise.
     #[arg(long)]
     domain: Option<Domain>,
-    /// voronoi (default), paper, or median-cut.
+    /// voronoi (default), paper, median-cut or inverse-cdf.
     #[arg(long, default_value = "voronoi")]
     method: Method,
     #[command(flatten)]
@@ -201,6 +224,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Lights(args) => run_lights(args),
         Command::Bench(args) => run_bench(args),
+        Command::Eval(args) => run_eval(args),
         Command::Serve(args) => run_serve(*args),
         Command::Healthcheck { addr } => healthcheck(&addr),
     };
@@ -432,6 +456,19 @@ fn healthcheck(addr: &str) -> anyhow::Result<()> {
     } else {
         bail!("unhealthy: {status}")
     }
+}
+
+/// `vemlight eval`.
+fn run_eval(args: EvalArgs) -> anyhow::Result<()> {
+    let summary = vemlight::eval::run(&vemlight::eval::EvalOptions {
+        maps: args.maps,
+        out: args.out,
+        doc: Some(args.doc),
+        quick: args.quick,
+        upper: args.upper,
+    })?;
+    println!("{summary}");
+    Ok(())
 }
 
 /// `vemlight bench`.

@@ -10,7 +10,7 @@ use vemlight::lights::{ExtractOptions, Extractor, Method, total_irradiance};
 use vemlight::lightset::{LightRequest, lightset_for_map};
 use vemlight::sampling::{Domain, Resampler};
 
-const METHODS: [Method; 3] = [Method::Voronoi, Method::Paper, Method::MedianCut];
+const METHODS: [Method; 4] = Method::ALL;
 
 fn opts(lights: usize, domain: Domain, method: Method) -> ExtractOptions {
     ExtractOptions {
@@ -180,8 +180,15 @@ fn hot_pixel_latlong_direction() {
             // the domain square's hot texel, give or take the half row over which the continuous
             // warp blends neighbouring rows (ALGORITHMS.md §2), i.e. 1.5 domain texels.
             let domain_texel = (4.0 * std::f64::consts::PI).sqrt() / out.side as f64;
+            // The inverse CDF has no density floor (pbrt-v3), so most of the 16 points land inside
+            // the hot pixel itself: the lights' spherical cells become wedges around it, and the
+            // brightest light's centroid takes in the dim background of its whole wedge. Near the
+            // pole (pixel (200, 250)) that pulls it 0.73° away, just over one texel (0.70°): a
+            // real weakness of the baseline, allowed two texels here and reported in
+            // docs/EVALUATION.md.
             let tolerance = match method {
                 Method::Paper => 1.5 * domain_texel,
+                Method::InverseCdf => 2.0 * texel,
                 _ => texel,
             };
             assert!(

@@ -4,6 +4,10 @@
 //! max(0, n·to_light_k), both in luminance, at a fixed Fibonacci sphere of normals. The error is the
 //! relative RMS, √(Σ_n (E_N − E)²) / √(Σ_n E²), which stays defined where E is 0 (normals facing
 //! away from a hemisphere domain).
+//!
+//! Glossy ([`GlossyReference`]): the same relative RMS for a normalised Phong lobe
+//! (e + 1)/(2π)·max(0, r·ω)^e around the reflection r of the fixed view direction [`glossy_view`]
+//! about each normal that faces the viewer (n·v > 0), ground truth by brute force over the pixels.
 
 use super::Light;
 use crate::envmap::EnvMap;
@@ -55,20 +59,22 @@ impl IrradianceReference {
 
     /// Brute force over every pixel of the source map inside the domain (the test oracle).
     pub fn from_map(map: &EnvMap, domain: crate::sampling::Domain) -> Self {
-        let mut emitters = Vec::with_capacity(map.width * map.height);
-        for j in 0..map.height {
-            for i in 0..map.width {
-                if let Some((d, sr)) = map.projection.pixel(i, j, map.width, map.height)
-                    && domain.contains(d)
-                {
-                    let y = EnvMap::luminance(map.pixels[j * map.width + i]);
-                    if y > 0.0 {
-                        emitters.push((d.as_vec3(), y * sr as f32));
-                    }
-                }
-            }
-        }
-        Self::from_emitters(&emitters)
+        Self::from_emitters(&map_emitters(map, domain))
+    }
+
+    /// From emitters, at the given normals instead of the default [`ERROR_NORMALS`] Fibonacci set.
+    pub fn with_normals(emitters: &[(Vec3, f32)], normals: Vec<DVec3>) -> Self {
+        let truth = normals
+            .iter()
+            .map(|n| {
+                let n = n.as_vec3();
+                emitters
+                    .iter()
+                    .map(|(d, e)| (*e * n.dot(*d).max(0.0)) as f64)
+                    .sum()
+            })
+            .collect();
+        IrradianceReference { normals, truth }
     }
 
     /// From a reduced copy of the domain square: texels binned into a 64×64 grid, each bin an
@@ -117,26 +123,7 @@ impl IrradianceReference {
 
     /// Relative RMS and relative max error of `estimate` (one value per normal).
     pub fn error_of(&self, estimate: &[f64]) -> DiffuseError {
-        let mut num = 0.0;
-        let mut den = 0.0;
-        let mut max_abs: f64 = 0.0;
-        for (e, t) in estimate.iter().zip(&self.truth) {
-            num += (e - t) * (e - t);
-            den += t * t;
-            max_abs = max_abs.max((e - t).abs());
-        }
-        if den <= 0.0 {
-            // A black map: any zero estimate is exact.
-            return DiffuseError {
-                rel_rms: if num > 0.0 { f64::INFINITY } else { 0.0 },
-                rel_max: if num > 0.0 { f64::INFINITY } else { 0.0 },
-            };
-        }
-        let rms_truth = (den / self.truth.len() as f64).sqrt();
-        DiffuseError {
-            rel_rms: (num / den).sqrt(),
-            rel_max: max_abs / rms_truth,
-        }
+        relative_error(estimate, &self.truth)
     }
 
     /// Error of a light set.
@@ -153,6 +140,131 @@ impl IrradianceReference {
     }
 }
 
+/// Every pixel of `map` inside `domain` with positive luminance, as an emitter (unit direction,
+/// luminance × sr): the brute-force ground truth of ALGORITHMS.md §8.
+pub fn map_emitters(map: &EnvMap, domain: crate::sampling::Domain) -> Vec<(Vec3, f32)> {
+    let mut emitters = Vec::with_capacity(map.width * map.height);
+    for j in 0..map.height {
+        for i in 0..map.width {
+            if let Some((d, sr)) = map.projection.pixel(i, j, map.width, map.height)
+                && domain.contains(d)
+            {
+                let y = EnvMap::luminance(map.pixels[j * map.width + i]);
+                if y > 0.0 {
+                    emitters.push((d.as_vec3(), y * sr as f32));
+                }
+            }
+        }
+    }
+    emitters
+}
+
+/// √(Σ(e − t)²)/√(Σt²) and max|e − t| / RMS(t); a zero truth is matched only by a zero estimate.
+fn relative_error(estimate: &[f64], truth: &[f64]) -> DiffuseError {
+    debug_assert_eq!(estimate.len(), truth.len());
+    let mut num = 0.0;
+    let mut den = 0.0;
+    let mut max_abs: f64 = 0.0;
+    for (e, t) in estimate.iter().zip(truth) {
+        num += (e - t) * (e - t);
+        den += t * t;
+        max_abs = max_abs.max((e - t).abs());
+    }
+    if den <= 0.0 {
+        // A black map: any zero estimate is exact.
+        return DiffuseError {
+            rel_rms: if num > 0.0 { f64::INFINITY } else { 0.0 },
+            rel_max: if num > 0.0 { f64::INFINITY } else { 0.0 },
+        };
+    }
+    let rms_truth = (den / truth.len() as f64).sqrt();
+    DiffuseError {
+        rel_rms: (num / den).sqrt(),
+        rel_max: max_abs / rms_truth,
+    }
+}
+
+/// Phong exponents of the glossy error (ALGORITHMS.md §8).
+pub const GLOSSY_EXPONENTS: [u32; 2] = [32, 128];
+
+/// Normals used for the glossy error; about half face the viewer, so the ≈ 512 reflection
+/// directions probe the sphere about every 9° (the e = 128 lobe's half-width at half maximum is 6°).
+pub const GLOSSY_NORMALS: usize = 1024;
+
+/// The fixed view direction of the glossy error: unit vector from the surface toward the eye,
+/// 30° above the horizon looking along −Z (so the eye is on the +Z side).
+pub fn glossy_view() -> DVec3 {
+    let e = 30f64.to_radians();
+    DVec3::new(0.0, e.sin(), e.cos())
+}
+
+/// The normalised Phong lobe (e + 1)/(2π)·max(0, r·ω)^e (it integrates to 1 over the sphere).
+fn phong(exponent: u32, cos: f32) -> f32 {
+    if cos <= 0.0 {
+        return 0.0;
+    }
+    (exponent as f32 + 1.0) / std::f32::consts::TAU * cos.powi(exponent as i32)
+}
+
+/// Ground truth of glossy reflection: G(n) = Σ L·lobe(r(n)·ω)·Δω at the reflection r of
+/// [`glossy_view`] about each normal that faces the viewer.
+pub struct GlossyReference {
+    exponent: u32,
+    reflections: Vec<Vec3>,
+    truth: Vec<f64>,
+}
+
+impl GlossyReference {
+    /// From emitters (unit direction, luminance × sr), e.g. [`map_emitters`].
+    pub fn from_emitters(emitters: &[(Vec3, f32)], exponent: u32) -> Self {
+        let v = glossy_view();
+        let reflections: Vec<Vec3> = fibonacci_sphere(GLOSSY_NORMALS)
+            .into_iter()
+            .filter(|n| n.dot(v) > 0.0)
+            .map(|n| (2.0 * n.dot(v) * n - v).normalize().as_vec3())
+            .collect();
+        let truth = reflections
+            .iter()
+            .map(|r| {
+                emitters
+                    .iter()
+                    .map(|(d, e)| (*e * phong(exponent, r.dot(*d))) as f64)
+                    .sum()
+            })
+            .collect();
+        GlossyReference {
+            exponent,
+            reflections,
+            truth,
+        }
+    }
+
+    /// Glossy estimate from a light set, one value per reflection direction.
+    pub fn estimate(&self, lights: &[Light]) -> Vec<f64> {
+        self.reflections
+            .iter()
+            .map(|r| {
+                lights
+                    .iter()
+                    .map(|l| {
+                        l.luminance()
+                            * phong(self.exponent, r.dot(Vec3::from_array(l.to_light))) as f64
+                    })
+                    .sum()
+            })
+            .collect()
+    }
+
+    /// Relative RMS and max error of a light set's glossy reflection.
+    pub fn error(&self, lights: &[Light]) -> DiffuseError {
+        relative_error(&self.estimate(lights), &self.truth)
+    }
+
+    pub fn truth(&self) -> &[f64] {
+        &self.truth
+    }
+}
+
 /// Diffuse irradiance error of a light set.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DiffuseError {
@@ -160,4 +272,60 @@ pub struct DiffuseError {
     pub rel_rms: f64,
     /// max |E_N − E| over the normals, divided by the RMS of E.
     pub rel_max: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn light(dir: Vec3, y: f32) -> Light {
+        Light {
+            id: 0,
+            to_light: dir.normalize().to_array(),
+            irradiance: [y; 3],
+            solid_angle: 0.0,
+        }
+    }
+
+    /// Emitters that are themselves point lights are reproduced exactly; moving one of them by a
+    /// few degrees costs more under the narrow lobe than under the wide one.
+    #[test]
+    fn glossy_error_is_zero_for_the_emitters_themselves_and_grows_with_the_exponent() {
+        let dirs = [
+            Vec3::new(0.3, 0.8, 0.5),
+            Vec3::new(-0.6, 0.2, 0.7),
+            Vec3::new(0.1, -0.4, -0.9),
+        ];
+        let emitters: Vec<(Vec3, f32)> = dirs.iter().map(|d| (d.normalize(), 2.0)).collect();
+        let exact: Vec<Light> = dirs.iter().map(|&d| light(d, 2.0)).collect();
+        let mut moved = exact.clone();
+        let d = Vec3::from_array(moved[0].to_light);
+        moved[0].to_light = (d + Vec3::new(0.06, 0.0, -0.04)).normalize().to_array();
+        let errs: Vec<f64> = GLOSSY_EXPONENTS
+            .iter()
+            .map(|&e| {
+                let r = GlossyReference::from_emitters(&emitters, e);
+                assert!(r.error(&exact).rel_rms < 1e-6, "e = {e}");
+                r.error(&moved).rel_rms
+            })
+            .collect();
+        assert!(errs[0] > 0.01 && errs[1] > errs[0], "{errs:?}");
+    }
+
+    /// The lobe integrates to 1 over the sphere: a uniform unit sky gives G = 1 everywhere.
+    #[test]
+    fn phong_lobe_is_normalised() {
+        let normals = fibonacci_sphere(200_000);
+        let sr = 4.0 * std::f64::consts::PI / normals.len() as f64;
+        let emitters: Vec<(Vec3, f32)> = normals.iter().map(|n| (n.as_vec3(), sr as f32)).collect();
+        for e in GLOSSY_EXPONENTS {
+            let r = GlossyReference::from_emitters(&emitters[..], e);
+            let worst = r
+                .truth()
+                .iter()
+                .map(|g| (g - 1.0).abs())
+                .fold(0.0, f64::max);
+            assert!(worst < 0.02, "e = {e}: {worst}");
+        }
+    }
 }

@@ -8,9 +8,13 @@
 //!   luminance-weighted centroid;
 //! - [`Method::Paper`]: lights at the warped points, energy from the Voronoi cells of the fixed
 //!   points in the unit square (HSKMS05 as described);
-//! - [`Method::MedianCut`]: Debevec 2005 on a lat-long map, the baseline.
+//! - [`Method::MedianCut`]: Debevec 2005 on a lat-long map, the baseline;
+//! - [`Method::InverseCdf`]: the discontinuous textbook inverse CDF (pbrt-v3 `Distribution2D` on the
+//!   lat-long map) with the same fixed points and the same spherical cells as the default: only
+//!   the warp differs, so it measures what bicontinuity buys (baseline, ALGORITHMS.md §7).
 
 pub mod error;
+pub mod inverse_cdf;
 pub mod median_cut;
 pub mod sh;
 
@@ -56,6 +60,10 @@ pub enum Method {
     Paper,
     /// Debevec's median cut on a lat-long map (baseline, ALGORITHMS.md §7).
     MedianCut,
+    /// The discontinuous inverse CDF on the lat-long map (pbrt-v3 `Distribution2D`), same fixed
+    /// points; lights then exactly as [`Method::Voronoi`] (nearest light on the sphere, centroid).
+    /// Baseline, ALGORITHMS.md §7.
+    InverseCdf,
 }
 
 impl Method {
@@ -64,8 +72,17 @@ impl Method {
             Method::Voronoi => "voronoi",
             Method::Paper => "paper",
             Method::MedianCut => "median-cut",
+            Method::InverseCdf => "inverse-cdf",
         }
     }
+
+    /// Every method, the default first.
+    pub const ALL: [Method; 4] = [
+        Method::Voronoi,
+        Method::Paper,
+        Method::MedianCut,
+        Method::InverseCdf,
+    ];
 
     /// Whether light id k is the same progressive point in every frame.
     pub fn ids_are_stable(self) -> bool {
@@ -80,8 +97,9 @@ impl std::str::FromStr for Method {
             "voronoi" | "default" => Ok(Method::Voronoi),
             "paper" => Ok(Method::Paper),
             "median-cut" | "mediancut" => Ok(Method::MedianCut),
+            "inverse-cdf" | "inversecdf" => Ok(Method::InverseCdf),
             _ => Err(format!(
-                "unknown method '{s}' (expected voronoi, paper or median-cut)"
+                "unknown method '{s}' (expected voronoi, paper, median-cut or inverse-cdf)"
             )),
         }
     }
@@ -129,6 +147,7 @@ pub struct Extractor {
     median_cut: median_cut::MedianCut,
     sh: sh::ShProjector,
     threads: usize,
+    inverse_cdf: inverse_cdf::InverseCdf,
 }
 
 /// Per-light sums over its cell.
@@ -206,15 +225,15 @@ impl Extractor {
                 timings.assign_s = t.elapsed().as_secs_f64();
                 l
             }
-            Method::Voronoi | Method::Paper => {
+            Method::Voronoi | Method::Paper | Method::InverseCdf => {
                 let t = Instant::now();
-                self.warp_seeds(&image, n);
+                self.warp_seeds(map, &image, opts.method, n);
                 timings.warp_s = t.elapsed().as_secs_f64();
                 let t = Instant::now();
-                let l = if opts.method == Method::Voronoi {
-                    self.assign_spherical(&image)
-                } else {
+                let l = if opts.method == Method::Paper {
                     self.assign_paper(&image)
+                } else {
+                    self.assign_spherical(&image)
                 };
                 timings.assign_s = t.elapsed().as_secs_f64();
                 l
@@ -248,7 +267,7 @@ impl Extractor {
         let mut warp_s = 0.0;
         if method != Method::MedianCut {
             let t = Instant::now();
-            self.warp_seeds(&image, max_n);
+            self.warp_seeds(map, &image, method, max_n);
             warp_s = t.elapsed().as_secs_f64();
         }
         let all_seeds = std::mem::take(&mut self.seeds);
@@ -259,13 +278,13 @@ impl Extractor {
                 let t = Instant::now();
                 let lights = match method {
                     Method::MedianCut => self.median_cut.lights(map, &image, n),
-                    Method::Voronoi | Method::Paper => {
+                    Method::Voronoi | Method::Paper | Method::InverseCdf => {
                         self.seeds.clear();
                         self.seeds.extend_from_slice(&all_seeds[..n]);
-                        if method == Method::Voronoi {
-                            self.assign_spherical(&image)
-                        } else {
+                        if method == Method::Paper {
                             self.assign_paper(&image)
+                        } else {
+                            self.assign_spherical(&image)
                         }
                     }
                 };
@@ -286,11 +305,16 @@ impl Extractor {
         out
     }
 
-    /// Builds the continuous warp over the luminance and pushes the first `n` progressive points
-    /// through it (ALGORITHMS.md §2–3).
-    fn warp_seeds(&mut self, image: &DomainImage, n: usize) {
-        self.dist.build(&image.luminance, image.side, image.side);
+    /// Builds the warp over the luminance and pushes the first `n` progressive points through it:
+    /// the continuous warp of the domain square (ALGORITHMS.md §2–3), or for
+    /// [`Method::InverseCdf`] the discontinuous one of the lat-long map.
+    fn warp_seeds(&mut self, map: &EnvMap, image: &DomainImage, method: Method, n: usize) {
         let points = &progressive_points()[..n];
+        if method == Method::InverseCdf {
+            self.inverse_cdf.seeds(map, image, points, &mut self.seeds);
+            return;
+        }
+        self.dist.build(&image.luminance, image.side, image.side);
         self.seeds.clear();
         self.seeds.extend(
             points

@@ -1,0 +1,201 @@
+//! Maps and sequences built for the evaluation: rotated real maps, an exposure ramp, a lamp switched
+//! on, procedural skies with a Gaussian sun, and the hard cases of the stability table.
+//!
+//! Everything here is lat-long (DESIGN.md convention) and deterministic, so the tests of
+//! tests/stability.rs see the same inputs as `vemlight eval`.
+
+use crate::envmap::{EnvMap, Projection};
+use glam::{DQuat, DVec3};
+use std::f64::consts::PI;
+
+/// Width and height of the procedural maps of the hard cases (pixels of 1.4°).
+pub const HARD_W: usize = 256;
+pub const HARD_H: usize = 128;
+
+/// Radiance of a lat-long map along `dir`, bilinear between pixel centres (wrapping in φ, clamped
+/// in θ): smooth in the direction, so a slowly rotated map changes smoothly too.
+pub fn bilinear_along(map: &EnvMap, dir: DVec3) -> [f32; 3] {
+    debug_assert_eq!(map.projection, Projection::LatLong);
+    let (w, h) = (map.width as f64, map.height as f64);
+    let theta = dir.y.clamp(-1.0, 1.0).acos();
+    let phi = dir.x.atan2(-dir.z);
+    let x = (phi / (2.0 * PI) + 0.5) * w - 0.5;
+    let y = (theta / PI * h - 0.5).clamp(0.0, h - 1.0);
+    let (x0, y0) = (x.floor(), y.floor());
+    let (tx, ty) = ((x - x0) as f32, (y - y0) as f32);
+    let i0 = (x0 as i64).rem_euclid(map.width as i64) as usize;
+    let i1 = (i0 + 1) % map.width;
+    let j0 = y0 as usize;
+    let j1 = (j0 + 1).min(map.height - 1);
+    let p = |i: usize, j: usize| map.pixels[j * map.width + i];
+    let mut out = [0.0f32; 3];
+    for (c, o) in out.iter_mut().enumerate() {
+        let top = p(i0, j0)[c] * (1.0 - tx) + p(i1, j0)[c] * tx;
+        let bottom = p(i0, j1)[c] * (1.0 - tx) + p(i1, j1)[c] * tx;
+        *o = top * (1.0 - ty) + bottom * ty;
+    }
+    out
+}
+
+/// Per-pixel directions of a lat-long grid, computed once and reused for every frame.
+pub struct LatLongDirs {
+    pub width: usize,
+    pub height: usize,
+    dirs: Vec<DVec3>,
+}
+
+impl LatLongDirs {
+    pub fn new(width: usize, height: usize) -> Self {
+        let mut dirs = Vec::with_capacity(width * height);
+        for j in 0..height {
+            for i in 0..width {
+                dirs.push(
+                    Projection::LatLong
+                        .pixel(i, j, width, height)
+                        .expect("lat-long")
+                        .0,
+                );
+            }
+        }
+        LatLongDirs {
+            width,
+            height,
+            dirs,
+        }
+    }
+
+    /// A map whose radiance along each pixel direction is `f(direction)`.
+    pub fn map(&self, f: impl Fn(DVec3) -> [f32; 3]) -> EnvMap {
+        let pixels = self.dirs.iter().map(|&d| f(d)).collect();
+        EnvMap::from_pixels(self.width, self.height, pixels, Projection::LatLong)
+            .expect("lat-long size")
+    }
+
+    /// `src` rotated by `rot` (the content seen along d is what `src` sees along rot⁻¹·d).
+    pub fn rotated(&self, src: &EnvMap, rot: DQuat) -> EnvMap {
+        let inv = rot.inverse();
+        self.map(|d| bilinear_along(src, inv * d))
+    }
+}
+
+/// Angle between two unit vectors, degrees (robust near 0).
+pub fn angle_deg(a: DVec3, b: DVec3) -> f64 {
+    2.0 * ((a - b).length() * 0.5).clamp(0.0, 1.0).asin().to_degrees()
+}
+
+/// A unit vector from elevation above the horizon and azimuth φ (DESIGN.md: φ = 0 looks along −Z,
+/// φ = π/2 along +X), degrees.
+pub fn dir_from_elev_azim(elev_deg: f64, azim_deg: f64) -> DVec3 {
+    let theta = (90.0 - elev_deg).to_radians();
+    let phi = azim_deg.to_radians();
+    DVec3::new(
+        theta.sin() * phi.sin(),
+        theta.cos(),
+        -theta.sin() * phi.cos(),
+    )
+}
+
+/// A clear procedural sky: blue gradient above, grey ground below, and a Gaussian sun
+/// (σ = `sun_sigma_deg`) toward `sun` whose ∫ L dω is `sun_share` of the whole map's.
+pub struct SunSky {
+    pub sun_sigma_deg: f64,
+    pub sun_share: f64,
+}
+
+impl SunSky {
+    fn sky(d: DVec3) -> [f32; 3] {
+        if d.y >= 0.0 {
+            let t = d.y as f32;
+            [0.35 + 0.25 * t, 0.5 + 0.3 * t, 0.9 + 0.3 * t]
+        } else {
+            [0.12, 0.11, 0.1]
+        }
+    }
+
+    /// The map with the sun toward `sun` (a unit vector).
+    pub fn render(&self, dirs: &LatLongDirs, sun: DVec3) -> EnvMap {
+        let sky = dirs.map(Self::sky);
+        let sky_lum = lum_integral(&sky);
+        // A Gaussian bump exp(−γ²/2σ²) has ∫ dω ≈ 2πσ² for small σ.
+        let s = self.sun_sigma_deg.to_radians();
+        let bump_integral = 2.0 * PI * s * s;
+        let amp = (self.sun_share / (1.0 - self.sun_share) * sky_lum / bump_integral) as f32;
+        let warm = [1.0f32, 0.95, 0.85];
+        let lum_warm = EnvMap::luminance(warm);
+        dirs.map(|d| {
+            let g = angle_deg(d, sun).to_radians();
+            let bump = amp * (-(g * g) / (2.0 * s * s)).exp() as f32 / lum_warm;
+            let b = Self::sky(d);
+            [
+                b[0] + bump * warm[0],
+                b[1] + bump * warm[1],
+                b[2] + bump * warm[2],
+            ]
+        })
+    }
+}
+
+/// ∫ Y dω over the whole lat-long map.
+pub fn lum_integral(map: &EnvMap) -> f64 {
+    let mut s = 0.0;
+    for j in 0..map.height {
+        let sr = Projection::LatLong
+            .pixel(0, j, map.width, map.height)
+            .expect("lat-long")
+            .1;
+        for i in 0..map.width {
+            s += EnvMap::luminance(map.pixels[j * map.width + i]) as f64 * sr;
+        }
+    }
+    s
+}
+
+/// `map` with a lamp: a disc of uniform grey radiance of the given angular radius toward `dir`,
+/// its radiance chosen so the lamp's ∫ L dω is `share` of the map's ∫ L dω before it is added.
+pub fn with_lamp(map: &EnvMap, dir: DVec3, radius_deg: f64, share: f64) -> EnvMap {
+    let cos_r = radius_deg.to_radians().cos();
+    let total = lum_integral(map);
+    let mut cap_sr = 0.0;
+    for j in 0..map.height {
+        for i in 0..map.width {
+            let (d, sr) = map
+                .projection
+                .pixel(i, j, map.width, map.height)
+                .expect("lat-long");
+            if d.dot(dir) >= cos_r {
+                cap_sr += sr;
+            }
+        }
+    }
+    let radiance = if cap_sr > 0.0 {
+        (share * total / cap_sr) as f32
+    } else {
+        0.0
+    };
+    let mut out = map.clone();
+    for j in 0..map.height {
+        for i in 0..map.width {
+            let (d, _) = map
+                .projection
+                .pixel(i, j, map.width, map.height)
+                .expect("lat-long");
+            if d.dot(dir) >= cos_r {
+                for c in &mut out.pixels[j * map.width + i] {
+                    *c += radiance;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Every pixel scaled by `gain`.
+pub fn scaled(map: &EnvMap, gain: f32) -> EnvMap {
+    let mut out = map.clone();
+    for p in &mut out.pixels {
+        for c in p.iter_mut() {
+            *c *= gain;
+        }
+    }
+    out
+}

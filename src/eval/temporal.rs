@@ -1,0 +1,365 @@
+//! Temporal stability of every method on slowly changing sequences (`vemlight eval`, temporal.csv).
+//!
+//! Input: a [`Sequence`] of lat-long frames. Output: per method, with and without the FIR of
+//! [`crate::temporal`], a [`TemporalRow`]:
+//! - **flicker ratio** = Σ_t Σ_n |E_N(t+1, n) − E_N(t, n)| / Σ_t Σ_n |E(t+1, n) − E(t, n)|, the total
+//!   variation of the irradiance from the lights at fixed normals over that of the true irradiance
+//!   (ALGORITHMS.md §8; 1 is perfect). Total variation, not RMS, so a filter that spreads a true step
+//!   over frames is not rewarded for it, while jitter on top of a true change always costs. Both
+//!   variants skip the filter's first M − 1 frames (its warm-up), and the filtered series is compared
+//!   with the truth delayed by the filter's nominal group delay, so that a lagging but exact estimate
+//!   of a ramp scores 1, not (shorter ramp)/(longer ramp);
+//! - the lights' angular speed per id (mean and 99th percentile, degrees per frame; for median cut
+//!   id k is the k-th region of the split order, which is not the same region from frame to frame,
+//!   so its "speed" measures popping);
+//! - the filter's delay: nominal group delay, and measured as the lag (0 … 12 frames) that best
+//!   aligns E_N with E;
+//! - the mean relative RMS error of E_N against the same frame's E.
+//!
+//! Ground truth per frame: brute force over the frame's pixels binned 4 × 4 (each bin an emitter at
+//! its luminance-weighted mean direction, so the binning error is second order: below 10⁻⁴ relative
+//! for diffuse irradiance), at [`TEMPORAL_NORMALS`] Fibonacci normals — fewer than the accuracy
+//! part's 256, to keep the whole evaluation within its time budget.
+
+use super::accuracy::SH_NAME;
+use super::scenes::angle_deg;
+use crate::envmap::{EnvMap, luminance64};
+use crate::lights::error::fibonacci_sphere;
+use crate::lights::{ExtractOptions, Extractor, Light, Method, sh};
+use crate::sampling::{Domain, Resampler};
+use crate::temporal::{FilterSpec, TemporalFilter};
+use glam::{DVec3, Vec3};
+
+/// Normals at which E and E_N are compared in the temporal part.
+pub const TEMPORAL_NORMALS: usize = 64;
+/// Pixels per side of a ground-truth bin.
+const TRUTH_BIN: usize = 4;
+/// Largest lag searched when measuring the delay, frames.
+const MAX_LAG: usize = 12;
+
+/// A named sequence of frames, rendered on demand (frames are not all held in memory).
+pub struct Sequence<'a> {
+    pub name: String,
+    pub description: String,
+    pub frames: usize,
+    pub render: Box<dyn FnMut(usize) -> EnvMap + 'a>,
+}
+
+/// The measurements of one method (and filter) on one sequence.
+#[derive(Clone, Debug)]
+pub struct TemporalRow {
+    pub sequence: String,
+    pub method: String,
+    /// "none" or "fir" (the default 9-tap binomial).
+    pub filter: &'static str,
+    pub lights: usize,
+    pub flicker: f64,
+    pub rel_rms: f64,
+    pub speed_mean_deg: f64,
+    pub speed_p99_deg: f64,
+    /// Largest per-id jump between consecutive frames, degrees.
+    pub speed_max_deg: f64,
+    pub delay_nominal: f64,
+    pub delay_measured: usize,
+}
+
+/// State of one (method, filter) variant while a sequence runs.
+struct Track {
+    method: Option<Method>,
+    filter: Option<TemporalFilter>,
+    series: Vec<Vec<f64>>,
+    prev: Vec<Light>,
+    speeds: Vec<f64>,
+}
+
+/// Runs every method on the sequence at `n` lights; `with_fir` adds the filtered variants.
+/// `tick` is called after every frame.
+pub fn run_sequence(
+    seq: &mut Sequence,
+    n: usize,
+    domain: Domain,
+    with_fir: bool,
+    mut tick: impl FnMut(),
+) -> Vec<TemporalRow> {
+    let normals = fibonacci_sphere(TEMPORAL_NORMALS);
+    let fir = FilterSpec::default();
+    let mut tracks: Vec<Track> = Vec::new();
+    for method in Method::ALL {
+        for filtered in [false, true] {
+            if filtered && !with_fir {
+                continue;
+            }
+            tracks.push(Track {
+                method: Some(method),
+                filter: filtered.then(|| TemporalFilter::new(&fir)),
+                series: Vec::new(),
+                prev: Vec::new(),
+                speeds: Vec::new(),
+            });
+        }
+    }
+    // The SH reference line: no lights, no filter.
+    tracks.push(Track {
+        method: None,
+        filter: None,
+        series: Vec::new(),
+        prev: Vec::new(),
+        speeds: Vec::new(),
+    });
+    let mut extractors: Vec<Extractor> = Method::ALL.iter().map(|_| Extractor::new()).collect();
+    let mut resampler: Option<Resampler> = None;
+    let mut truth_series = Vec::with_capacity(seq.frames);
+
+    for t in 0..seq.frames {
+        let map = (seq.render)(t);
+        truth_series.push(truth(&map, domain, &normals));
+        let outs: Vec<Vec<Light>> = Method::ALL
+            .iter()
+            .zip(&mut extractors)
+            .map(|(&method, ex)| {
+                let opts = ExtractOptions {
+                    lights: n,
+                    domain,
+                    method,
+                    side: None,
+                };
+                ex.extract(&map, &opts).lights
+            })
+            .collect();
+        for tr in &mut tracks {
+            let Some(method) = tr.method else {
+                let r = resampler.get_or_insert_with(|| {
+                    Resampler::new(map.projection, map.width, map.height, domain, None)
+                });
+                let c = sh::project(&r.resample(&map));
+                tr.series.push(
+                    normals
+                        .iter()
+                        .map(|&nrm| luminance64(sh::irradiance(&c, nrm)))
+                        .collect(),
+                );
+                continue;
+            };
+            let raw = &outs[Method::ALL
+                .iter()
+                .position(|&m| m == method)
+                .expect("listed")];
+            let lights = match &mut tr.filter {
+                Some(f) => f.filter(raw),
+                None => raw.clone(),
+            };
+            tr.series.push(irradiance_at(&lights, &normals));
+            if tr.prev.len() == lights.len() {
+                tr.speeds.extend(
+                    tr.prev
+                        .iter()
+                        .zip(&lights)
+                        .map(|(a, b)| angle_deg(a.dir(), b.dir())),
+                );
+            }
+            tr.prev = lights;
+        }
+        tick();
+    }
+
+    tracks
+        .into_iter()
+        .map(|mut tr| {
+            let delay_nominal = if tr.filter.is_some() {
+                fir.delay_frames()
+            } else {
+                0.0
+            };
+            let (mean, p99, max) = speed_stats(&mut tr.speeds);
+            TemporalRow {
+                sequence: seq.name.clone(),
+                method: tr
+                    .method
+                    .map(|m| m.name().to_string())
+                    .unwrap_or_else(|| SH_NAME.to_string()),
+                filter: if tr.filter.is_some() { "fir" } else { "none" },
+                lights: if tr.method.is_some() { n } else { 0 },
+                flicker: {
+                    // Skip the warm-up; compare the filtered series with the delayed truth.
+                    let warm = (fir.kernel().len() - 1).min(tr.series.len().saturating_sub(2));
+                    let d = (delay_nominal.round() as usize).min(warm);
+                    let end = tr.series.len();
+                    flicker_ratio(&tr.series[warm..], &truth_series[warm - d..end - d])
+                },
+                rel_rms: mean_rel_rms(&tr.series, &truth_series, 0),
+                speed_mean_deg: mean,
+                speed_p99_deg: p99,
+                speed_max_deg: max,
+                delay_nominal,
+                delay_measured: best_lag(&tr.series, &truth_series),
+            }
+        })
+        .collect()
+}
+
+/// E_N (luminance) at each normal from a light set.
+pub fn irradiance_at(lights: &[Light], normals: &[DVec3]) -> Vec<f64> {
+    normals
+        .iter()
+        .map(|n| {
+            lights
+                .iter()
+                .map(|l| l.luminance() * n.dot(l.dir()).max(0.0))
+                .sum()
+        })
+        .collect()
+}
+
+/// True E (luminance) at each normal, by brute force over the frame's pixels binned
+/// [`TRUTH_BIN`] × [`TRUTH_BIN`] with their first moment kept.
+pub fn truth(map: &EnvMap, domain: Domain, normals: &[DVec3]) -> Vec<f64> {
+    let (bw, bh) = (
+        map.width.div_ceil(TRUTH_BIN),
+        map.height.div_ceil(TRUTH_BIN),
+    );
+    let mut bins = vec![(Vec3::ZERO, 0.0f32); bw * bh];
+    for j in 0..map.height {
+        for i in 0..map.width {
+            if let Some((d, sr)) = map.projection.pixel(i, j, map.width, map.height)
+                && domain.contains(d)
+            {
+                let y = EnvMap::luminance(map.pixels[j * map.width + i]) * sr as f32;
+                if y > 0.0 {
+                    let b = &mut bins[(j / TRUTH_BIN) * bw + i / TRUTH_BIN];
+                    b.0 += d.as_vec3() * y;
+                    b.1 += y;
+                }
+            }
+        }
+    }
+    let emitters: Vec<(Vec3, f32)> = bins
+        .into_iter()
+        .filter(|b| b.1 > 0.0)
+        .map(|(m, e)| (m.normalize_or(Vec3::Y), e))
+        .collect();
+    normals
+        .iter()
+        .map(|n| {
+            let n = n.as_vec3();
+            emitters
+                .iter()
+                .map(|(d, e)| (e * n.dot(*d).max(0.0)) as f64)
+                .sum()
+        })
+        .collect()
+}
+
+/// Total variation of `series` over that of `truth` (both frames × normals); 1 when the truth does
+/// not change and neither does the estimate, ∞ when only the estimate changes.
+pub fn flicker_ratio(series: &[Vec<f64>], truth: &[Vec<f64>]) -> f64 {
+    let tv = |s: &[Vec<f64>]| -> f64 {
+        s.windows(2)
+            .map(|w| {
+                w[0].iter()
+                    .zip(&w[1])
+                    .map(|(a, b)| (b - a).abs())
+                    .sum::<f64>()
+            })
+            .sum()
+    };
+    let (num, den) = (tv(series), tv(truth));
+    if den > 0.0 {
+        num / den
+    } else if num > 0.0 {
+        f64::INFINITY
+    } else {
+        1.0
+    }
+}
+
+/// Mean over frames t ≥ lag of the relative RMS of series(t) against truth(t − lag).
+fn mean_rel_rms(series: &[Vec<f64>], truth: &[Vec<f64>], lag: usize) -> f64 {
+    let mut acc = 0.0;
+    let mut count = 0;
+    for t in lag..series.len() {
+        let (mut num, mut den) = (0.0, 0.0);
+        for (e, g) in series[t].iter().zip(&truth[t - lag]) {
+            num += (e - g) * (e - g);
+            den += g * g;
+        }
+        if den > 0.0 {
+            acc += (num / den).sqrt();
+            count += 1;
+        }
+    }
+    if count > 0 { acc / count as f64 } else { 0.0 }
+}
+
+/// The lag (frames) at which the series best matches the truth.
+fn best_lag(series: &[Vec<f64>], truth: &[Vec<f64>]) -> usize {
+    (0..=MAX_LAG.min(series.len().saturating_sub(2)))
+        .map(|lag| (lag, mean_rel_rms(series, truth, lag)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(lag, _)| lag)
+        .unwrap_or(0)
+}
+
+fn speed_stats(speeds: &mut [f64]) -> (f64, f64, f64) {
+    if speeds.is_empty() {
+        return (0.0, 0.0, 0.0);
+    }
+    speeds.sort_by(f64::total_cmp);
+    let mean = speeds.iter().sum::<f64>() / speeds.len() as f64;
+    let p99 = speeds[((speeds.len() - 1) as f64 * 0.99).round() as usize];
+    (mean, p99, speeds[speeds.len() - 1])
+}
+
+/// temporal.csv.
+pub fn to_csv(rows: &[TemporalRow]) -> String {
+    let mut s = String::from(
+        "sequence,method,filter,lights,flicker_ratio,rel_rms,speed_mean_deg,speed_p99_deg,speed_max_deg,delay_nominal_frames,delay_measured_frames\n",
+    );
+    for r in rows {
+        s += &format!(
+            "{},{},{},{},{:.4},{:.5},{:.4},{:.4},{:.3},{},{}\n",
+            r.sequence,
+            r.method,
+            r.filter,
+            r.lights,
+            r.flicker,
+            r.rel_rms,
+            r.speed_mean_deg,
+            r.speed_p99_deg,
+            r.speed_max_deg,
+            r.delay_nominal,
+            r.delay_measured
+        );
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flicker_ratio_is_one_for_the_truth_and_counts_jitter() {
+        let truth: Vec<Vec<f64>> = (0..20).map(|t| vec![t as f64, 2.0 * t as f64]).collect();
+        assert!((flicker_ratio(&truth, &truth) - 1.0).abs() < 1e-12);
+        // ±2 alternating jitter on ramps of slope 1 and 2: of the 19 steps, 10 are slope − 4 and 9
+        // slope + 4, so the total variation goes from 19·3 = 57 to (10·3 + 9·5) + (10·2 + 9·6) = 149.
+        let jittery: Vec<Vec<f64>> = truth
+            .iter()
+            .enumerate()
+            .map(|(t, v)| {
+                let j = if t % 2 == 0 { 2.0 } else { -2.0 };
+                v.iter().map(|x| x + j).collect()
+            })
+            .collect();
+        let r = flicker_ratio(&jittery, &truth);
+        assert!((r - 149.0 / 57.0).abs() < 1e-9, "{r}");
+        // A lagging but exact copy of a step has the same total variation.
+        let step: Vec<Vec<f64>> = (0..20)
+            .map(|t| vec![if t < 10 { 0.0 } else { 1.0 }])
+            .collect();
+        let smooth: Vec<Vec<f64>> = (0..20)
+            .map(|t| vec![((t as f64 - 10.0) / 4.0).clamp(0.0, 1.0)])
+            .collect();
+        assert!((flicker_ratio(&smooth, &step) - 1.0).abs() < 1e-12);
+    }
+}

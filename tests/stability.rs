@@ -1,0 +1,178 @@
+//! Invariants of every method on every hard case of the stability table (issue 5): finite output,
+//! energy conserved, every light inside the domain, ids stable over a sequence for the ordered
+//! methods. The assertions are written here, independently of `eval::stability::violations`.
+
+use vemlight::envmap::EnvMap;
+use vemlight::eval::scenes::angle_deg;
+use vemlight::eval::stability::{CaseKind, HARD_N, hard_cases, violations};
+use vemlight::lights::{ExtractOptions, Extractor, Light, Method, total_irradiance};
+use vemlight::sampling::Domain;
+
+fn extract(
+    ex: &mut Extractor,
+    map: &EnvMap,
+    n: usize,
+    domain: Domain,
+    method: Method,
+) -> Vec<Light> {
+    ex.extract(
+        map,
+        &ExtractOptions {
+            lights: n,
+            domain,
+            method,
+            side: None,
+        },
+    )
+    .lights
+}
+
+fn check(case: &str, map: &EnvMap, n: usize, domain: Domain, method: Method, lights: &[Light]) {
+    let ctx = format!("{case} {} {} N={n}", method.name(), domain.name());
+    assert!(!lights.is_empty(), "{ctx}: no lights");
+    for l in lights {
+        assert!(
+            l.to_light
+                .iter()
+                .chain(&l.irradiance)
+                .chain([&l.solid_angle])
+                .all(|c| c.is_finite()),
+            "{ctx}: non-finite light {l:?}"
+        );
+        assert!(
+            l.irradiance.iter().all(|&c| c >= 0.0),
+            "{ctx}: negative {l:?}"
+        );
+        let d = l.dir();
+        assert!((d.length() - 1.0).abs() < 1e-4, "{ctx}: not unit {l:?}");
+        if domain == Domain::Upper {
+            assert!(d.y >= -1e-5, "{ctx}: light below the horizon {l:?}");
+        }
+    }
+    // Energy: Σ irradiance = ∫ L dω of the (sanitised) map, 1e−4 relative.
+    let truth = map.integral(domain);
+    let sum = total_irradiance(lights);
+    for c in 0..3 {
+        assert!(
+            (sum[c] - truth[c]).abs() <= 1e-4 * truth[c].abs() + 1e-12,
+            "{ctx}: channel {c}: Σ irradiance {} vs ∫L dω {}",
+            sum[c],
+            truth[c]
+        );
+    }
+    if method.ids_are_stable() {
+        assert_eq!(lights.len(), n, "{ctx}: light count");
+        for (k, l) in lights.iter().enumerate() {
+            assert_eq!(l.id, k as u32, "{ctx}: id order");
+        }
+    } else {
+        assert!(lights.len() <= n, "{ctx}: too many lights");
+    }
+    // The eval's own checker must agree that nothing is violated.
+    let v = violations(map, domain, method, n, lights);
+    assert!(v.is_empty(), "{ctx}: eval reports {v:?}");
+}
+
+#[test]
+fn every_method_holds_its_invariants_on_every_static_hard_case() {
+    for case in hard_cases() {
+        let CaseKind::Static { map, counts } = &case.kind else {
+            continue;
+        };
+        for method in Method::ALL {
+            let mut ex = Extractor::new();
+            for domain in [Domain::Sphere, Domain::Upper] {
+                for &n in counts {
+                    let lights = extract(&mut ex, map, n, domain, method);
+                    check(case.name, map, n, domain, method, &lights);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_pixels_are_clamped_and_counted_not_propagated() {
+    let cases = hard_cases();
+    let case = cases
+        .iter()
+        .find(|c| c.name == "nan-negative")
+        .expect("case");
+    let CaseKind::Static { map, .. } = &case.kind else {
+        panic!("static case")
+    };
+    assert!(map.repairs.non_finite_pixels > 0 && map.repairs.negative_pixels > 0);
+    assert!(
+        map.pixels
+            .iter()
+            .flatten()
+            .all(|c| c.is_finite() && *c >= 0.0)
+    );
+}
+
+#[test]
+fn every_method_holds_its_invariants_over_every_hard_sequence() {
+    for case in hard_cases() {
+        let CaseKind::Sequence { frames } = &case.kind else {
+            continue;
+        };
+        for method in Method::ALL {
+            for domain in [Domain::Sphere, Domain::Upper] {
+                let mut ex = Extractor::new();
+                let mut prev: Option<Vec<Light>> = None;
+                for (t, map) in frames.iter().enumerate() {
+                    let lights = extract(&mut ex, map, HARD_N, domain, method);
+                    check(
+                        &format!("{} frame {t}", case.name),
+                        map,
+                        HARD_N,
+                        domain,
+                        method,
+                        &lights,
+                    );
+                    if method.ids_are_stable()
+                        && let Some(p) = &prev
+                    {
+                        // Same ids, same order, in every frame.
+                        let ids: Vec<u32> = lights.iter().map(|l| l.id).collect();
+                        let prev_ids: Vec<u32> = p.iter().map(|l| l.id).collect();
+                        assert_eq!(ids, prev_ids, "{} {} frame {t}", case.name, method.name());
+                    }
+                    prev = Some(lights);
+                }
+            }
+        }
+    }
+}
+
+/// The sun moving 0.5°/frame across the seam or over the zenith: the light that holds it (the
+/// brightest) follows it in every frame for the default method, with no jump across the seam.
+#[test]
+fn default_method_tracks_the_sun_across_the_seam_and_the_zenith() {
+    for case in hard_cases() {
+        if !matches!(case.name, "seam" | "zenith") {
+            continue;
+        }
+        let CaseKind::Sequence { frames } = &case.kind else {
+            panic!("sequence")
+        };
+        let mut ex = Extractor::new();
+        let mut prev: Option<glam::DVec3> = None;
+        for (t, map) in frames.iter().enumerate() {
+            let lights = extract(&mut ex, map, HARD_N, Domain::Sphere, Method::Voronoi);
+            let brightest = lights
+                .iter()
+                .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
+                .expect("lights");
+            if let Some(p) = prev {
+                let step = angle_deg(p, brightest.dir());
+                assert!(
+                    step < 3.0,
+                    "{} frame {t}: brightest light moved {step:.2}° (sun moves 0.5°)",
+                    case.name
+                );
+            }
+            prev = Some(brightest.dir());
+        }
+    }
+}
