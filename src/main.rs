@@ -21,6 +21,10 @@ struct Cli {
 enum Command {
     /// One environment map (OpenEXR or Radiance HDR) → a LightSet on stdout.
     Lights(LightsArgs),
+    /// The render client: a scene lit by the lights of a stream, a LightSet file or a map, with
+    /// shadows; windowed, headless (PNG frames) or --bench (docs/RENDER.md).
+    #[cfg(feature = "render")]
+    View(vemlight::render::view::ViewArgs),
 }
 
 #[derive(clap::Args)]
@@ -85,6 +89,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Lights(args) => run_lights(args),
+        #[cfg(feature = "render")]
+        Command::View(args) => vemlight::render::view::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
