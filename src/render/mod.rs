@@ -134,7 +134,7 @@ impl Renderer {
         let device = gpu.device.clone();
         let scene_buffers = SceneBuffers::new(&device, scene);
         let shadows = ShadowMaps::new(gpu, ShadowFit::for_scene(scene), options.shadow_size);
-        let shading = ShadingPass::new(&device, size);
+        let shading = ShadingPass::new(&device, size, scene_buffers.draws.len());
         let tonemap = TonemapPass::new(&device, format, &shading.hdr_view);
         let overlay = OverlayPass::new(&device, format);
         Renderer {
@@ -177,6 +177,8 @@ impl Renderer {
         self.lights.clear();
         self.lights.extend_from_slice(lights);
         self.lights.sort_by_key(|l| l.id);
+        // The uniform arrays hold MAX_LIGHTS; the progressive order makes the prefix the right cut.
+        self.lights.truncate(shading::MAX_LIGHTS);
         self.lights_dirty = true;
         self.exposure = self.options.exposure.unwrap_or_else(|| auto_exposure(lights));
     }
@@ -233,8 +235,12 @@ impl Renderer {
             &mut self.group_shadows,
         );
         if self.lights_dirty {
-            self.shading
-                .upload_lights(&self.queue, &self.lights, &self.grouping);
+            self.shading.upload_lights(
+                &self.queue,
+                &self.lights,
+                &self.grouping,
+                &self.scene.draws,
+            );
         }
         if self.lights_dirty || maps_drawn > 0 {
             self.shading
@@ -260,6 +266,7 @@ impl Renderer {
             &self.scene,
             &self.shadows.array_view,
             self.shadows.generation,
+            o.cull,
         );
         let stats = FrameStats {
             lights: self.lights.len() as u32,

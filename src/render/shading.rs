@@ -1,18 +1,22 @@
 //! The shading pass: every pixel of the scene lit by the light groups, through their shadow maps,
-//! into a linear HDR target (`shaders/shade.wgsl`); and the normal bins that cull lights per pixel.
+//! into a linear HDR target (`shaders/shade.wgsl`); and the normal cones that cull lights per draw.
 //!
 //! Input: the grouped lights ([`Grouping`]), each group's [`GroupShadow`], the camera. Output: the
 //! HDR target (linear radiance × exposure, Rgba32Float) that the tonemap pass displays and the tests
 //! read back.
 //!
-//! Culling by normal extent (ALGORITHMS.md §6): the unit sphere of normals is cut into B × B bins of
-//! the octahedral map. A bin's normals lie in a cone (axis a, half-angle α), and a light can reach
-//! one of them only if to_light·a > −sin α. Each bin gets the list of groups with such a member; a
-//! pixel loops over its bin's list only. Lights below the surface are skipped per pixel anyway
-//! (n·l ≤ 0); the bins save the loop over the other half of the set.
+//! Culling by normal extent (ALGORITHMS.md §6): the scene's triangles are bucketed by normal into
+//! B × B bins of the octahedral map and drawn one bucket per call ([`Scene::bucketed`]). A bucket's
+//! vertex normals lie in a cone (axis a, half-angle α), and a light can reach one of its pixels only
+//! if to_light·a > −sin α. Each draw gets the list of groups with such a member, and its pixels loop
+//! over that list only. The list is the same for every pixel of a draw (a dynamic uniform offset),
+//! which matters on a SIMD software rasterizer like lavapipe: a per-pixel list makes every
+//! neighbouring pixel's loop, and every load in it, divergent, and cost more than it saves.
+//!
+//! [`Scene::bucketed`]: super::scene::Scene::bucketed
 
 use super::cluster::{Group, Grouping};
-use super::scene::{Camera, Vertex};
+use super::scene::{Camera, DrawRange, Vertex};
 use super::shadow::{GroupShadow, SceneBuffers};
 use crate::lights::Light;
 use glam::{Vec2, Vec3};
@@ -21,7 +25,7 @@ use glam::{Vec2, Vec3};
 pub const HDR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Format of the camera's depth buffer.
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-/// Side B of the B × B grid of normal bins (64 cones of about 25°).
+/// Side B of the B × B grid of normal bins (64 bins of about 25°).
 pub const BIN_SIDE: u32 = 8;
 
 /// `Globals` in shade.wgsl.
@@ -57,12 +61,17 @@ impl LightRaw {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 struct GroupRaw {
-    view_proj: [f32; 16],
-    layer: u32,
-    first: u32,
-    count: u32,
-    pad: u32,
+    /// The first three rows of the world → shadow-clip matrix (orthographic: the fourth is 0 0 0 1).
+    rows: [[f32; 4]; 3],
+    /// layer, first, count, unused.
+    info: [u32; 4],
 }
+
+/// Lights (and groups) the shading pass holds: the uniform arrays in shade.wgsl are this long.
+pub const MAX_LIGHTS: usize = 1024;
+/// Entries of the draws' group lists (`c_max_list_vec4` × 4 in shade.wgsl). A set whose lists
+/// would not fit is shaded without culling.
+pub const MAX_LIST: usize = 16384;
 
 /// The switches of the shading pass (see [`super::Options`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -109,122 +118,51 @@ pub fn octahedral_decode(uv: Vec2) -> Vec3 {
     Vec3::new(x, y, z).normalize()
 }
 
-/// The cones of the B × B normal bins.
-#[derive(Clone, Debug)]
-pub struct NormalBins {
-    side: u32,
-    /// Per bin: the cone's axis and sin α.
-    cones: Vec<(Vec3, f32)>,
+/// Bin of a unit normal in the B × B octahedral grid (`side` = B).
+pub fn bin_of(n: Vec3, side: u32) -> u32 {
+    let uv = octahedral_encode(n) * side as f32;
+    let i = (uv.x as u32).min(side - 1);
+    let j = (uv.y as u32).min(side - 1);
+    j * side + i
 }
 
-impl NormalBins {
-    pub fn new(side: u32) -> NormalBins {
-        // Each bin is sampled on a 9 × 9 grid of its square (edges included); the cone is the
-        // samples' mean direction and their largest angle from it, plus 2° for the gaps between
-        // samples (about 3° apart at B = 8).
-        const SAMPLES: u32 = 9;
-        let margin = 2f32.to_radians();
-        let mut cones = Vec::with_capacity((side * side) as usize);
-        for j in 0..side {
-            for i in 0..side {
-                let dirs: Vec<Vec3> = (0..SAMPLES * SAMPLES)
-                    .map(|k| {
-                        let (a, b) = ((k % SAMPLES) as f32, (k / SAMPLES) as f32);
-                        let s = (SAMPLES - 1) as f32;
-                        octahedral_decode(Vec2::new(
-                            (i as f32 + a / s) / side as f32,
-                            (j as f32 + b / s) / side as f32,
-                        ))
-                    })
-                    .collect();
-                let axis = dirs.iter().sum::<Vec3>().normalize_or(Vec3::Y);
-                let alpha = dirs
-                    .iter()
-                    .map(|d| axis.dot(*d).clamp(-1.0, 1.0).acos())
-                    .fold(0.0f32, f32::max)
-                    + margin;
-                cones.push((axis, alpha.min(std::f32::consts::PI).sin()));
-                if alpha >= std::f32::consts::FRAC_PI_2 {
-                    // sin α is no longer monotonic past 90°: such a cone sees every light.
-                    cones.last_mut().unwrap().1 = 1.0;
-                }
-            }
-        }
-        NormalBins { side, cones }
-    }
-
-    pub fn side(&self) -> u32 {
-        self.side
-    }
-
-    /// Bin index of a normal, as shade.wgsl computes it.
-    pub fn bin_of(&self, n: Vec3) -> usize {
-        let uv = octahedral_encode(n) * self.side as f32;
-        let i = (uv.x as u32).min(self.side - 1);
-        let j = (uv.y as u32).min(self.side - 1);
-        (j * self.side + i) as usize
-    }
-
-    /// Per bin (offset, count) into `list`, then one more entry listing every group.
-    /// `culled_in` counts the (bin, group) pairs kept, for the statistics.
-    pub fn lists(
-        &self,
-        lights: &[Light],
-        grouping: &Grouping,
-        bins: &mut Vec<[u32; 2]>,
-        list: &mut Vec<u32>,
-    ) {
-        bins.clear();
-        list.clear();
-        for &(axis, sin_alpha) in &self.cones {
-            let offset = list.len() as u32;
-            for (gi, g) in grouping.groups.iter().enumerate() {
-                let members = &grouping.order[g.first as usize..(g.first + g.count) as usize];
-                let reaches = members.iter().any(|&i| {
-                    Vec3::from_array(lights[i as usize].to_light).dot(axis) > -sin_alpha
-                });
-                if reaches {
-                    list.push(gi as u32);
-                }
-            }
-            bins.push([offset, list.len() as u32 - offset]);
-        }
+/// Per draw, (offset, count) into `list` of the groups that can reach the draw's normal cone; then
+/// one more entry listing every group (culling off).
+pub fn draw_lists(
+    draws: &[DrawRange],
+    lights: &[Light],
+    grouping: &Grouping,
+    lists: &mut Vec<[u32; 2]>,
+    list: &mut Vec<u32>,
+) {
+    lists.clear();
+    list.clear();
+    for d in draws {
         let offset = list.len() as u32;
-        list.extend(0..grouping.groups.len() as u32);
-        bins.push([offset, grouping.groups.len() as u32]);
+        for (gi, g) in grouping.groups.iter().enumerate() {
+            let members = &grouping.order[g.first as usize..(g.first + g.count) as usize];
+            let reaches = members
+                .iter()
+                .any(|&i| Vec3::from_array(lights[i as usize].to_light).dot(d.axis) > -d.sin_alpha);
+            if reaches {
+                list.push(gi as u32);
+            }
+        }
+        lists.push([offset, list.len() as u32 - offset]);
     }
+    let offset = list.len() as u32;
+    list.extend(0..grouping.groups.len() as u32);
+    lists.push([offset, grouping.groups.len() as u32]);
 }
 
-/// A storage buffer that grows (by powers of two) to fit what is written to it.
-struct GrowBuffer {
-    label: &'static str,
-    buffer: wgpu::Buffer,
-}
-
-impl GrowBuffer {
-    fn new(device: &wgpu::Device, label: &'static str, size: u64) -> GrowBuffer {
-        GrowBuffer {
-            label,
-            buffer: device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size.max(256),
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            }),
-        }
-    }
-
-    /// Writes `data`; returns true when the buffer had to be reallocated (rebind it).
-    fn write(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, data: &[u8]) -> bool {
-        let grew = data.len() as u64 > self.buffer.size();
-        if grew {
-            *self = GrowBuffer::new(device, self.label, (data.len() as u64).next_power_of_two());
-        }
-        if !data.is_empty() {
-            queue.write_buffer(&self.buffer, 0, data);
-        }
-        grew
-    }
+/// A uniform buffer of fixed size.
+fn uniform_buffer(device: &wgpu::Device, label: &str, size: usize) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: size as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
 }
 
 /// The shading pass and its targets.
@@ -233,10 +171,18 @@ pub struct ShadingPass {
     pipeline: wgpu::RenderPipeline,
     bind_group_layout: wgpu::BindGroupLayout,
     globals: wgpu::Buffer,
-    lights: GrowBuffer,
-    groups: GrowBuffer,
-    bins: GrowBuffer,
-    bin_groups: GrowBuffer,
+    // Uniform, not storage, buffers: lavapipe (Mesa 22.3) loads storage buffers one SIMD lane at a
+    // time, uniform buffers as one gather; with ~100 loads per pixel that is a 3× difference.
+    lights: wgpu::Buffer,
+    groups: wgpu::Buffer,
+    list: wgpu::Buffer,
+    /// Whether this set's lists fit [`MAX_LIST`] (otherwise culling is off for it).
+    lists_fit: bool,
+    n_groups: u32,
+    /// One 256-byte slot per draw (and one for "every group"): its (offset, count) into `list`.
+    draw_params: wgpu::Buffer,
+    draw_bind_group: wgpu::BindGroup,
+    draw_stride: u32,
     sampler: wgpu::Sampler,
     bind_group: Option<wgpu::BindGroup>,
     /// Shadow-array generation the bind group was made for.
@@ -245,25 +191,25 @@ pub struct ShadingPass {
     pub hdr_view: wgpu::TextureView,
     depth_view: wgpu::TextureView,
     pub size: (u32, u32),
-    pub normal_bins: NormalBins,
     // CPU staging, reused between uploads.
     light_raw: Vec<LightRaw>,
     group_raw: Vec<GroupRaw>,
-    bin_raw: Vec<[u32; 2]>,
-    bin_list: Vec<u32>,
+    lists_raw: Vec<[u32; 2]>,
+    list_raw: Vec<u32>,
+    draw_raw: Vec<u8>,
 }
 
 impl ShadingPass {
-    pub fn new(device: &wgpu::Device, size: (u32, u32)) -> ShadingPass {
+    pub fn new(device: &wgpu::Device, size: (u32, u32), draws: usize) -> ShadingPass {
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("shade.wgsl"),
             source: wgpu::ShaderSource::Wgsl(include_str!("../../shaders/shade.wgsl").into()),
         });
-        let storage = |binding| wgpu::BindGroupLayoutEntry {
+        let uniform = |binding| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::FRAGMENT,
             ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only: true },
+                ty: wgpu::BufferBindingType::Uniform,
                 has_dynamic_offset: false,
                 min_binding_size: None,
             },
@@ -284,12 +230,11 @@ impl ShadingPass {
                     },
                     count: None,
                 },
-                storage(1),
-                storage(2),
-                storage(3),
-                storage(4),
+                uniform(1),
+                uniform(2),
+                uniform(3),
                 wgpu::BindGroupLayoutEntry {
-                    binding: 5,
+                    binding: 4,
                     visibility: wgpu::ShaderStages::FRAGMENT,
                     ty: wgpu::BindingType::Texture {
                         sample_type: wgpu::TextureSampleType::Depth,
@@ -299,16 +244,29 @@ impl ShadingPass {
                     count: None,
                 },
                 wgpu::BindGroupLayoutEntry {
-                    binding: 6,
+                    binding: 5,
                     visibility: wgpu::ShaderStages::FRAGMENT,
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
                     count: None,
                 },
             ],
         });
+        let draw_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("shade draw"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: true,
+                    min_binding_size: wgpu::BufferSize::new(16),
+                },
+                count: None,
+            }],
+        });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shade"),
-            bind_group_layouts: &[Some(&bind_group_layout)],
+            bind_group_layouts: &[Some(&bind_group_layout), Some(&draw_layout)],
             immediate_size: 0,
         });
         let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
@@ -362,16 +320,39 @@ impl ShadingPass {
             compare: Some(wgpu::CompareFunction::LessEqual),
             ..Default::default()
         });
+        let draw_stride = device.limits().min_uniform_buffer_offset_alignment.max(16);
+        let draw_params = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("shade draw params"),
+            size: (draws as u64 + 1) * draw_stride as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let draw_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("shade draw"),
+            layout: &draw_layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &draw_params,
+                    offset: 0,
+                    size: wgpu::BufferSize::new(16),
+                }),
+            }],
+        });
         let (hdr, hdr_view, depth_view) = Self::targets(device, size);
         ShadingPass {
             device: device.clone(),
             pipeline,
             bind_group_layout,
             globals,
-            lights: GrowBuffer::new(device, "lights", 64 * 32),
-            groups: GrowBuffer::new(device, "groups", 64 * 80),
-            bins: GrowBuffer::new(device, "normal bins", 8 * (BIN_SIDE * BIN_SIDE + 1) as u64),
-            bin_groups: GrowBuffer::new(device, "bin groups", 4096),
+            lights: uniform_buffer(device, "lights", MAX_LIGHTS * std::mem::size_of::<LightRaw>()),
+            groups: uniform_buffer(device, "groups", MAX_LIGHTS * std::mem::size_of::<GroupRaw>()),
+            list: uniform_buffer(device, "draw light lists", MAX_LIST * 4),
+            lists_fit: true,
+            n_groups: 0,
+            draw_params,
+            draw_bind_group,
+            draw_stride,
             sampler,
             bind_group: None,
             bound_generation: u64::MAX,
@@ -379,11 +360,11 @@ impl ShadingPass {
             hdr_view,
             depth_view,
             size,
-            normal_bins: NormalBins::new(BIN_SIDE),
             light_raw: Vec::new(),
             group_raw: Vec::new(),
-            bin_raw: Vec::new(),
-            bin_list: Vec::new(),
+            lists_raw: Vec::new(),
+            list_raw: Vec::new(),
+            draw_raw: Vec::new(),
         }
     }
 
@@ -431,12 +412,14 @@ impl ShadingPass {
         }
     }
 
-    /// Uploads the lights (in group order) and the normal bins' lists; call when the lights change.
+    /// Uploads the lights (in group order) and each draw's list of groups; call when the lights
+    /// change.
     pub fn upload_lights(
         &mut self,
         queue: &wgpu::Queue,
         lights: &[Light],
         grouping: &Grouping,
+        draws: &[DrawRange],
     ) {
         self.light_raw.clear();
         self.light_raw.extend(
@@ -445,32 +428,42 @@ impl ShadingPass {
                 .iter()
                 .map(|&i| LightRaw::from_light(&lights[i as usize])),
         );
-        self.normal_bins
-            .lists(lights, grouping, &mut self.bin_raw, &mut self.bin_list);
-        let mut rebind = self
-            .lights
-            .write(&self.device, queue, bytemuck::cast_slice(&self.light_raw));
-        rebind |= self
-            .bins
-            .write(&self.device, queue, bytemuck::cast_slice(&self.bin_raw));
-        rebind |= self
-            .bin_groups
-            .write(&self.device, queue, bytemuck::cast_slice(&self.bin_list));
-        if rebind {
-            self.bind_group = None;
+        debug_assert!(self.light_raw.len() <= MAX_LIGHTS);
+        self.light_raw.truncate(MAX_LIGHTS);
+        draw_lists(draws, lights, grouping, &mut self.lists_raw, &mut self.list_raw);
+        self.lists_fit = self.list_raw.len() <= MAX_LIST;
+        self.n_groups = grouping.groups.len() as u32;
+        self.draw_raw.clear();
+        for entry in &self.lists_raw {
+            let slot = self.draw_raw.len();
+            self.draw_raw.resize(slot + self.draw_stride as usize, 0);
+            self.draw_raw[slot..slot + 8].copy_from_slice(bytemuck::cast_slice(entry));
+        }
+        queue.write_buffer(&self.draw_params, 0, &self.draw_raw);
+        if !self.light_raw.is_empty() {
+            queue.write_buffer(&self.lights, 0, bytemuck::cast_slice(&self.light_raw));
+        }
+        if self.lists_fit && !self.list_raw.is_empty() {
+            queue.write_buffer(&self.list, 0, bytemuck::cast_slice(&self.list_raw));
         }
     }
 
-    /// Average length of the bins' group lists over the list of all groups (1 = no culling).
-    pub fn mean_bin_fraction(&self) -> f32 {
-        let Some(all) = self.bin_raw.last() else {
+    /// Mean over the draws of the fraction of groups in their lists (1 = nothing culled), weighted
+    /// by the draws' index counts.
+    pub fn mean_list_fraction(&self, draws: &[DrawRange]) -> f32 {
+        let Some(all) = self.lists_raw.last() else {
             return 1.0;
         };
-        if all[1] == 0 || self.bin_raw.len() < 2 {
+        if all[1] == 0 {
             return 1.0;
         }
-        let bins = &self.bin_raw[..self.bin_raw.len() - 1];
-        bins.iter().map(|b| b[1] as f32).sum::<f32>() / (bins.len() as f32 * all[1] as f32)
+        let total: u32 = draws.iter().map(|d| d.range.len() as u32).sum();
+        let kept: f32 = draws
+            .iter()
+            .zip(&self.lists_raw)
+            .map(|(d, l)| d.range.len() as f32 * l[1] as f32 / all[1] as f32)
+            .sum();
+        kept / total.max(1) as f32
     }
 
     /// Uploads each group's shadow layer and matrix; call when either changes.
@@ -478,17 +471,12 @@ impl ShadingPass {
         self.group_raw.clear();
         self.group_raw
             .extend(groups.iter().zip(shadows).map(|(g, s)| GroupRaw {
-                view_proj: s.view_proj.to_cols_array(),
-                layer: s.layer,
-                first: g.first,
-                count: g.count,
-                pad: 0,
+                rows: [0, 1, 2].map(|r| s.view_proj.row(r).to_array()),
+                info: [s.layer, g.first, g.count, 0],
             }));
-        if self
-            .groups
-            .write(&self.device, queue, bytemuck::cast_slice(&self.group_raw))
-        {
-            self.bind_group = None;
+        self.group_raw.truncate(MAX_LIGHTS);
+        if !self.group_raw.is_empty() {
+            queue.write_buffer(&self.groups, 0, bytemuck::cast_slice(&self.group_raw));
         }
     }
 
@@ -505,10 +493,10 @@ impl ShadingPass {
                 1.0 / p.shadow_size as f32,
             ],
             flags: [
-                p.cull as u32,
+                (p.cull && self.lists_fit) as u32,
                 p.glossy_threshold.is_some() as u32,
                 p.pcf_taps,
-                BIN_SIDE,
+                self.n_groups,
             ],
         };
         queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&raw));
@@ -521,6 +509,7 @@ impl ShadingPass {
         scene: &SceneBuffers,
         shadow_view: &wgpu::TextureView,
         shadow_generation: u64,
+        cull: bool,
     ) {
         if self.bound_generation != shadow_generation {
             self.bind_group = None;
@@ -536,26 +525,22 @@ impl ShadingPass {
                     },
                     wgpu::BindGroupEntry {
                         binding: 1,
-                        resource: self.lights.buffer.as_entire_binding(),
+                        resource: self.lights.as_entire_binding(),
                     },
                     wgpu::BindGroupEntry {
                         binding: 2,
-                        resource: self.groups.buffer.as_entire_binding(),
+                        resource: self.groups.as_entire_binding(),
                     },
                     wgpu::BindGroupEntry {
                         binding: 3,
-                        resource: self.bins.buffer.as_entire_binding(),
+                        resource: self.list.as_entire_binding(),
                     },
                     wgpu::BindGroupEntry {
                         binding: 4,
-                        resource: self.bin_groups.buffer.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 5,
                         resource: wgpu::BindingResource::TextureView(shadow_view),
                     },
                     wgpu::BindGroupEntry {
-                        binding: 6,
+                        binding: 5,
                         resource: wgpu::BindingResource::Sampler(&self.sampler),
                     },
                 ],
@@ -591,7 +576,17 @@ impl ShadingPass {
         pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
         // Casters come first in the index buffer: the mesh, in front, fills the depth buffer before
         // the ground behind it is shaded.
-        pass.draw_indexed(scene.all.clone(), 0, 0..1);
+        if cull && self.lists_fit {
+            for (i, d) in scene.draws.iter().enumerate() {
+                pass.set_bind_group(1, &self.draw_bind_group, &[i as u32 * self.draw_stride]);
+                pass.draw_indexed(d.range.clone(), 0, 0..1);
+            }
+        } else {
+            // One draw with the list of every group (the last slot).
+            let all = scene.draws.len() as u32 * self.draw_stride;
+            pass.set_bind_group(1, &self.draw_bind_group, &[all]);
+            pass.draw_indexed(scene.all.clone(), 0, 0..1);
+        }
     }
 }
 
@@ -614,38 +609,43 @@ mod tests {
     }
 
     #[test]
-    fn every_normal_lies_in_its_bins_cone() {
-        let bins = NormalBins::new(BIN_SIDE);
-        for k in 0..4000 {
-            let y = 1.0 - 2.0 * (k as f32 + 0.5) / 4000.0;
-            let phi = k as f32 * 2.399_963;
-            let r = (1.0 - y * y).sqrt();
-            let n = Vec3::new(r * phi.cos(), y, r * phi.sin());
-            let (axis, sin_alpha) = bins.cones[bins.bin_of(n)];
-            // n within α of the axis ⇔ n·a ≥ cos α.
-            let cos_alpha = (1.0 - sin_alpha * sin_alpha).sqrt();
-            assert!(sin_alpha >= 1.0 || n.dot(axis) >= cos_alpha - 1e-6, "{n} bin {}", bins.bin_of(n));
-        }
-    }
-
-    #[test]
-    fn a_light_below_a_bins_cone_is_culled_and_one_above_is_kept() {
-        let bins = NormalBins::new(BIN_SIDE);
-        let up = bins.bin_of(Vec3::Y);
+    fn a_light_below_a_draws_cone_is_culled_and_one_above_is_kept() {
+        let draws = [DrawRange {
+            range: 0..3,
+            axis: Vec3::Y,
+            sin_alpha: 10f32.to_radians().sin(),
+        }];
         let light = |id, d: Vec3| Light {
             id,
             to_light: d.normalize().to_array(),
             irradiance: [1.0; 3],
             solid_angle: 0.1,
         };
-        let lights = [light(0, Vec3::new(0.0, -1.0, 0.1)), light(1, Vec3::new(0.2, 1.0, 0.0))];
+        // 5° below the horizon: reaches normals tilted 10° toward it. 20° below: cannot.
+        let lights = [
+            light(0, Vec3::new(0.0, -(20f32.to_radians().tan()), 1.0)),
+            light(1, Vec3::new(0.0, -(5f32.to_radians().tan()), 1.0)),
+            light(2, Vec3::new(0.2, 1.0, 0.0)),
+        ];
         let mut c = super::super::cluster::Clusterer::new(0.0);
         let mut g = Grouping::default();
         c.group(&lights, &mut g);
-        let (mut b, mut l) = (Vec::new(), Vec::new());
-        bins.lists(&lights, &g, &mut b, &mut l);
-        let [off, n] = b[up];
-        assert_eq!(&l[off as usize..(off + n) as usize], &[1]);
-        assert_eq!(b.last().unwrap()[1], 2);
+        let (mut lists, mut list) = (Vec::new(), Vec::new());
+        draw_lists(&draws, &lights, &g, &mut lists, &mut list);
+        let [off, n] = lists[0];
+        assert_eq!(&list[off as usize..(off + n) as usize], &[1, 2]);
+        assert_eq!(lists.last().unwrap()[1], 3);
+    }
+
+    #[test]
+    fn bins_cover_the_grid() {
+        let mut seen = vec![false; (BIN_SIDE * BIN_SIDE) as usize];
+        for k in 0..20000 {
+            let y = 1.0 - 2.0 * (k as f32 + 0.5) / 20000.0;
+            let phi = k as f32 * 2.399_963;
+            let r = (1.0 - y * y).sqrt();
+            seen[bin_of(Vec3::new(r * phi.cos(), y, r * phi.sin()), BIN_SIDE) as usize] = true;
+        }
+        assert!(seen.iter().all(|&s| s));
     }
 }

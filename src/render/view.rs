@@ -68,8 +68,8 @@ pub struct ViewArgs {
     /// Side of each shadow map, texels.
     #[arg(long, default_value_t = 512)]
     pub shadow_size: u32,
-    /// PCF taps per shadow lookup: 1 (bilinear 2×2) or 4 (3×3 tent).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4))]
+    /// PCF taps per shadow lookup: 1 (bilinear 2×2) or 4 (3×3 tent); 0 turns shadows off.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(0..=4))]
     pub pcf: u32,
     /// Fixed exposure (default: from the lights).
     #[arg(long)]
@@ -88,6 +88,9 @@ pub struct ViewArgs {
     /// degrees per frame (every shadow map goes stale; 0 = skip).
     #[arg(long, default_value_t = 1.0)]
     pub bench_turn_deg: f32,
+    /// With --bench: which paths to time (naive, steady, turning), comma-separated.
+    #[arg(long, default_value = "naive,steady,turning", value_delimiter = ',')]
+    pub bench_paths: Vec<String>,
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -119,7 +122,11 @@ impl ViewArgs {
             o.reuse_deg = (!self.no_reuse).then_some(self.reuse_deg.max(0.0));
         }
         o.shadow_size = self.shadow_size.clamp(16, 8192);
-        o.pcf_taps = if self.pcf >= 4 { 4 } else { 1 };
+        o.pcf_taps = match self.pcf {
+            0 => 0,
+            1..=3 => 1,
+            _ => 4,
+        };
         o.exposure = self.exposure;
         o.overlay = !self.no_overlay;
         o
@@ -280,6 +287,9 @@ fn bench(args: &ViewArgs) -> anyhow::Result<()> {
     const WARMUP: u32 = 3;
     println!("vemlight view --bench");
     println!("device: {}", gpu.describe());
+    if set.lights.len() > super::shading::MAX_LIGHTS {
+        bail!("at most {} lights", super::shading::MAX_LIGHTS);
+    }
     println!(
         "scene: {} triangles ({} casting shadows); {}x{}; lights: {} from {} ({}); shadow maps {}²",
         scene.triangle_count(),
@@ -310,7 +320,9 @@ fn bench(args: &ViewArgs) -> anyhow::Result<()> {
         ("optimised, lights turning", opt, args.bench_turn_deg),
     ];
     for (name, options, turn) in paths {
-        if name.contains("turning") && turn == 0.0 {
+        let key = name.split([' ', ',']).last().unwrap_or(name);
+        let key = if name == "naive" { "naive" } else if key == "lights" { name.split(", ").nth(1).unwrap_or("").split(' ').next().unwrap_or("") } else { key };
+        if (name.contains("turning") && turn == 0.0) || !args.bench_paths.iter().any(|p| p == key) {
             continue;
         }
         renderer.set_options(options);
@@ -342,9 +354,10 @@ fn bench(args: &ViewArgs) -> anyhow::Result<()> {
         );
         rows.push((name.to_owned(), med, summary));
     }
-    let naive = rows[0].1;
-    for (name, med, _) in &rows[1..] {
-        println!("speed-up, {name}: {:.2}x the naive path", naive / med);
+    if let Some(naive) = rows.iter().find(|r| r.0 == "naive").map(|r| r.1) {
+        for (name, med, _) in rows.iter().filter(|r| r.0 != "naive") {
+            println!("speed-up, {name}: {:.2}x the naive path", naive / med);
+        }
     }
     Ok(())
 }
