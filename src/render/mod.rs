@@ -135,7 +135,7 @@ impl Renderer {
         let scene_buffers = SceneBuffers::new(&device, scene);
         let shadows = ShadowMaps::new(gpu, ShadowFit::for_scene(scene), options.shadow_size);
         let shading = ShadingPass::new(&device, size, scene_buffers.draws.len());
-        let tonemap = TonemapPass::new(&device, format, &shading.hdr_view);
+        let tonemap = TonemapPass::new(&device, format, shading.hdr().1);
         let overlay = OverlayPass::new(&device, format);
         Renderer {
             queue: gpu.queue.clone(),
@@ -193,15 +193,15 @@ impl Renderer {
 
     /// Rebuilds the size-dependent targets.
     pub fn resize(&mut self, size: (u32, u32)) {
-        if size != self.shading.size {
+        if size != self.shading.size() {
             self.shading.resize(size);
-            self.tonemap.resize(&self.shading.hdr_view);
+            self.tonemap.resize(self.shading.hdr().1);
             self.output = None;
         }
     }
 
     pub fn size(&self) -> (u32, u32) {
-        self.shading.size
+        self.shading.size()
     }
 
     /// Renders one frame into `target` and submits it.
@@ -266,7 +266,6 @@ impl Renderer {
             &self.scene,
             &self.shadows.array_view,
             self.shadows.generation,
-            o.cull,
         );
         let stats = FrameStats {
             lights: self.lights.len() as u32,
@@ -280,7 +279,7 @@ impl Renderer {
                 ..*status
             };
             self.overlay
-                .prepare(&self.queue, self.shading.size, &self.lights, &status);
+                .prepare(&self.queue, self.shading.size(), &self.lights, &status);
         }
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("display pass"),
@@ -307,7 +306,7 @@ impl Renderer {
 
     /// Renders into the renderer's own target (headless; see [`Renderer::read_rgba8`]).
     pub fn render_headless(&mut self, camera: &Camera, status: &Status) -> FrameStats {
-        let size = self.shading.size;
+        let size = self.shading.size();
         let output = self.output.get_or_insert_with(|| {
             let texture = self.device.create_texture(&wgpu::TextureDescriptor {
                 label: Some("headless output"),
@@ -338,20 +337,20 @@ impl Renderer {
     /// The last headless frame, 8-bit sRGB RGBA, rows top to bottom.
     pub fn read_rgba8(&self) -> image::RgbaImage {
         let output = self.output.as_ref().expect("render_headless first");
-        let (w, h) = self.shading.size;
+        let (w, h) = self.shading.size();
         let bytes = self.read_texture(&output.texture, 4);
         image::RgbaImage::from_raw(w, h, bytes).expect("size matches")
     }
 
     /// The last frame's linear HDR target (radiance × exposure), RGBA f32, rows top to bottom.
     pub fn read_hdr(&self) -> Vec<[f32; 4]> {
-        let bytes = self.read_texture(&self.shading.hdr, 16);
+        let bytes = self.read_texture(self.shading.hdr().0, 16);
         bytemuck::pod_collect_to_vec(&bytes)
     }
 
     /// Copies a texture to the CPU (rows padded to 256 bytes on the way, unpadded here).
     fn read_texture(&self, texture: &wgpu::Texture, bytes_per_pixel: u32) -> Vec<u8> {
-        let (w, h) = self.shading.size;
+        let (w, h) = self.shading.size();
         let row = w * bytes_per_pixel;
         let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
         let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {

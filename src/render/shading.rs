@@ -1,17 +1,21 @@
-//! The shading pass: every pixel of the scene lit by the light groups, through their shadow maps,
-//! into a linear HDR target (`shaders/shade.wgsl`); and the normal cones that cull lights per draw.
+//! Shading, deferred: a geometry pass writes what each pixel sees (`shaders/gbuffer.wgsl`), then a
+//! lighting pass lights every pixel once by all light groups through their shadow maps, into a
+//! linear HDR target (`shaders/light.wgsl`); and the normal cones that cull lights per draw.
 //!
 //! Input: the grouped lights ([`Grouping`]), each group's [`GroupShadow`], the camera. Output: the
 //! HDR target (linear radiance × exposure, Rgba32Float) that the tonemap pass displays and the tests
 //! read back.
 //!
+//! Why deferred: lavapipe runs fragment shaders on 4 × 4 pixel blocks, so a mesh of sub-pixel
+//! triangles (the full-resolution bunny at 320 × 240) would run the many-light loop many times per
+//! covered pixel. The geometry pass pays that with a trivial shader; the lighting pass is one
+//! full-screen triangle.
+//!
 //! Culling by normal extent (ALGORITHMS.md §6): the scene's triangles are bucketed by normal into
 //! B × B bins of the octahedral map and drawn one bucket per call ([`Scene::bucketed`]). A bucket's
 //! vertex normals lie in a cone (axis a, half-angle α), and a light can reach one of its pixels only
-//! if to_light·a > −sin α. Each draw gets the list of groups with such a member, and its pixels loop
-//! over that list only. The list is the same for every pixel of a draw (a dynamic uniform offset),
-//! which matters on a SIMD software rasterizer like lavapipe: a per-pixel list makes every
-//! neighbouring pixel's loop, and every load in it, divergent, and cost more than it saves.
+//! if to_light·a > −sin α. Each draw gets the list of groups with such a member; the geometry pass
+//! stores the draw's number per pixel, and the lighting pass loops over that draw's list only.
 //!
 //! [`Scene::bucketed`]: super::scene::Scene::bucketed
 
@@ -21,6 +25,14 @@ use super::shadow::{GroupShadow, SceneBuffers};
 use crate::lights::Light;
 use glam::{Vec2, Vec3};
 
+/// G-buffer formats: position + draw, normal + k_s, albedo + shininess.
+pub const GBUFFER_FORMATS: [wgpu::TextureFormat; 3] = [
+    wgpu::TextureFormat::Rgba32Float,
+    wgpu::TextureFormat::Rgba32Float,
+    wgpu::TextureFormat::Rgba8Unorm,
+];
+/// Draws the lighting pass knows lists for (`c_max_draws` in light.wgsl).
+pub const MAX_DRAWS: usize = 256;
 /// Format of the HDR target.
 pub const HDR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Format of the camera's depth buffer.
@@ -28,17 +40,16 @@ pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Side B of the B × B grid of normal bins (64 bins of about 25°).
 pub const BIN_SIDE: u32 = 8;
 
-/// `Globals` in shade.wgsl.
+/// `Globals` in light.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 struct GlobalsRaw {
-    view_proj: [f32; 16],
     camera_pos: [f32; 4],
     params: [f32; 4],
     flags: [u32; 4],
 }
 
-/// `Light` in shade.wgsl.
+/// `Light` in light.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct LightRaw {
@@ -57,7 +68,7 @@ impl LightRaw {
     }
 }
 
-/// `Group` in shade.wgsl.
+/// `Group` in light.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 struct GroupRaw {
@@ -67,9 +78,9 @@ struct GroupRaw {
     info: [u32; 4],
 }
 
-/// Lights (and groups) the shading pass holds: the uniform arrays in shade.wgsl are this long.
+/// Lights (and groups) the shading pass holds: the uniform arrays in light.wgsl are this long.
 pub const MAX_LIGHTS: usize = 1024;
-/// Entries of the draws' group lists (`c_max_list_vec4` × 4 in shade.wgsl). A set whose lists
+/// Entries of the draws' group lists (`c_max_list_vec4` × 4 in light.wgsl). A set whose lists
 /// would not fit is shaded without culling.
 pub const MAX_LIST: usize = 16384;
 
@@ -89,7 +100,7 @@ pub struct ShadingParams {
 }
 
 /// Octahedral map of a unit vector to [0,1]², +Y at the centre (matches `octahedral_encode` in
-/// shade.wgsl).
+/// light.wgsl).
 pub fn octahedral_encode(n: Vec3) -> Vec2 {
     let mut p = Vec2::new(n.x, n.z) / (n.x.abs() + n.y.abs() + n.z.abs());
     if n.y < 0.0 {
@@ -165,112 +176,128 @@ fn uniform_buffer(device: &wgpu::Device, label: &str, size: usize) -> wgpu::Buff
     })
 }
 
-/// The shading pass and its targets.
+/// Size-dependent targets: the G-buffer, the camera's depth and the HDR result.
+struct Targets {
+    size: (u32, u32),
+    gbuffer: [wgpu::TextureView; 3],
+    depth: wgpu::TextureView,
+    hdr: wgpu::Texture,
+    hdr_view: wgpu::TextureView,
+}
+
+impl Targets {
+    fn new(device: &wgpu::Device, (width, height): (u32, u32)) -> Targets {
+        let make = |label, format, usage| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width,
+                    height,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage,
+                view_formats: &[],
+            })
+        };
+        let g_usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING;
+        let gbuffer = ["g position", "g normal", "g material"]
+            .into_iter()
+            .zip(GBUFFER_FORMATS)
+            .map(|(label, format)| make(label, format, g_usage).create_view(&Default::default()))
+            .collect::<Vec<_>>()
+            .try_into()
+            .expect("three targets");
+        let depth = make("camera depth", DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT)
+            .create_view(&Default::default());
+        let hdr = make(
+            "hdr",
+            HDR_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
+        );
+        let hdr_view = hdr.create_view(&Default::default());
+        Targets {
+            size: (width, height),
+            gbuffer,
+            depth,
+            hdr,
+            hdr_view,
+        }
+    }
+}
+
+/// The geometry and lighting passes, their buffers and targets.
 pub struct ShadingPass {
     device: wgpu::Device,
-    pipeline: wgpu::RenderPipeline,
-    bind_group_layout: wgpu::BindGroupLayout,
+    geometry_pipeline: wgpu::RenderPipeline,
+    camera: wgpu::Buffer,
+    camera_bind_group: wgpu::BindGroup,
+    light_pipeline: wgpu::RenderPipeline,
+    light_layout: wgpu::BindGroupLayout,
     globals: wgpu::Buffer,
-    // Uniform, not storage, buffers: lavapipe (Mesa 22.3) loads storage buffers one SIMD lane at a
-    // time, uniform buffers as one gather; with ~100 loads per pixel that is a 3× difference.
     lights: wgpu::Buffer,
     groups: wgpu::Buffer,
     list: wgpu::Buffer,
+    draws: wgpu::Buffer,
     /// Whether this set's lists fit [`MAX_LIST`] (otherwise culling is off for it).
     lists_fit: bool,
     n_groups: u32,
-    /// One 256-byte slot per draw (and one for "every group"): its (offset, count) into `list`.
-    draw_params: wgpu::Buffer,
-    draw_bind_group: wgpu::BindGroup,
-    draw_stride: u32,
     sampler: wgpu::Sampler,
-    bind_group: Option<wgpu::BindGroup>,
+    /// Rebuilt when the targets or the shadow array change.
+    light_bind_group: Option<wgpu::BindGroup>,
     /// Shadow-array generation the bind group was made for.
     bound_generation: u64,
-    pub hdr: wgpu::Texture,
-    pub hdr_view: wgpu::TextureView,
-    depth_view: wgpu::TextureView,
-    pub size: (u32, u32),
+    targets: Targets,
     // CPU staging, reused between uploads.
     light_raw: Vec<LightRaw>,
     group_raw: Vec<GroupRaw>,
     lists_raw: Vec<[u32; 2]>,
     list_raw: Vec<u32>,
-    draw_raw: Vec<u8>,
+    draw_raw: Vec<[u32; 4]>,
 }
 
 impl ShadingPass {
     pub fn new(device: &wgpu::Device, size: (u32, u32), draws: usize) -> ShadingPass {
+        assert!(draws < MAX_DRAWS, "{draws} draws; the lighting pass knows {MAX_DRAWS}");
+        // The geometry pass.
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("shade.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("../../shaders/shade.wgsl").into()),
+            label: Some("gbuffer.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("../../shaders/gbuffer.wgsl").into()),
         });
-        let uniform = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::FRAGMENT,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let bind_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("shade"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: wgpu::BufferSize::new(
-                            std::mem::size_of::<GlobalsRaw>() as u64
-                        ),
-                    },
-                    count: None,
-                },
-                uniform(1),
-                uniform(2),
-                uniform(3),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 4,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Depth,
-                        view_dimension: wgpu::TextureViewDimension::D2Array,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 5,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
-                    count: None,
-                },
-            ],
-        });
-        let draw_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("shade draw"),
+        let camera_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("gbuffer"),
             entries: &[wgpu::BindGroupLayoutEntry {
                 binding: 0,
-                visibility: wgpu::ShaderStages::FRAGMENT,
+                visibility: wgpu::ShaderStages::VERTEX,
                 ty: wgpu::BindingType::Buffer {
                     ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: true,
-                    min_binding_size: wgpu::BufferSize::new(16),
+                    has_dynamic_offset: false,
+                    min_binding_size: wgpu::BufferSize::new(64),
                 },
                 count: None,
             }],
         });
+        let camera = uniform_buffer(device, "camera", 64);
+        let camera_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("gbuffer"),
+            layout: &camera_layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: camera.as_entire_binding(),
+            }],
+        });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("shade"),
-            bind_group_layouts: &[Some(&bind_group_layout), Some(&draw_layout)],
+            label: Some("gbuffer"),
+            bind_group_layouts: &[Some(&camera_layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("shade"),
+        let geometry_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("gbuffer"),
             layout: Some(&layout),
             vertex: wgpu::VertexState {
                 module: &shader,
@@ -297,16 +324,92 @@ impl ShadingPass {
                 module: &shader,
                 entry_point: Some("fs_main"),
                 compilation_options: Default::default(),
-                targets: &[Some(HDR_FORMAT.into())],
+                targets: &GBUFFER_FORMATS.map(|f| Some(f.into())),
             }),
             multiview_mask: None,
             cache: None,
         });
-        let globals = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("shade globals"),
-            size: std::mem::size_of::<GlobalsRaw>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
+
+        // The lighting pass.
+        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("light.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("../../shaders/light.wgsl").into()),
+        });
+        let uniform = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let texture = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Texture {
+                // Read with textureLoad (Rgba32Float is not filterable).
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let light_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("light"),
+            entries: &[
+                uniform(0),
+                uniform(1),
+                uniform(2),
+                uniform(3),
+                uniform(4),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 5,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Depth,
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 6,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                    count: None,
+                },
+                texture(7),
+                texture(8),
+                texture(9),
+            ],
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("light"),
+            bind_group_layouts: &[Some(&light_layout)],
+            immediate_size: 0,
+        });
+        let light_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("light"),
+            layout: Some(&layout),
+            vertex: wgpu::VertexState {
+                module: &shader,
+                entry_point: Some("vs_light"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState::default(),
+            depth_stencil: None,
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &shader,
+                entry_point: Some("fs_light"),
+                compilation_options: Default::default(),
+                targets: &[Some(HDR_FORMAT.into())],
+            }),
+            multiview_mask: None,
+            cache: None,
         });
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("shadow compare"),
@@ -320,46 +423,24 @@ impl ShadingPass {
             compare: Some(wgpu::CompareFunction::LessEqual),
             ..Default::default()
         });
-        let draw_stride = device.limits().min_uniform_buffer_offset_alignment.max(16);
-        let draw_params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("shade draw params"),
-            size: (draws as u64 + 1) * draw_stride as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let draw_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("shade draw"),
-            layout: &draw_layout,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer: &draw_params,
-                    offset: 0,
-                    size: wgpu::BufferSize::new(16),
-                }),
-            }],
-        });
-        let (hdr, hdr_view, depth_view) = Self::targets(device, size);
         ShadingPass {
             device: device.clone(),
-            pipeline,
-            bind_group_layout,
-            globals,
+            geometry_pipeline,
+            camera,
+            camera_bind_group,
+            light_pipeline,
+            light_layout,
+            globals: uniform_buffer(device, "light globals", std::mem::size_of::<GlobalsRaw>()),
             lights: uniform_buffer(device, "lights", MAX_LIGHTS * std::mem::size_of::<LightRaw>()),
             groups: uniform_buffer(device, "groups", MAX_LIGHTS * std::mem::size_of::<GroupRaw>()),
             list: uniform_buffer(device, "draw light lists", MAX_LIST * 4),
+            draws: uniform_buffer(device, "draws", MAX_DRAWS * 16),
             lists_fit: true,
             n_groups: 0,
-            draw_params,
-            draw_bind_group,
-            draw_stride,
             sampler,
-            bind_group: None,
+            light_bind_group: None,
             bound_generation: u64::MAX,
-            hdr,
-            hdr_view,
-            depth_view,
-            size,
+            targets: Targets::new(device, size),
             light_raw: Vec::new(),
             group_raw: Vec::new(),
             lists_raw: Vec::new(),
@@ -368,47 +449,20 @@ impl ShadingPass {
         }
     }
 
-    fn targets(
-        device: &wgpu::Device,
-        (width, height): (u32, u32),
-    ) -> (wgpu::Texture, wgpu::TextureView, wgpu::TextureView) {
-        let extent = wgpu::Extent3d {
-            width,
-            height,
-            depth_or_array_layers: 1,
-        };
-        let hdr = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("hdr"),
-            size: extent,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: HDR_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                | wgpu::TextureUsages::TEXTURE_BINDING
-                | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
-        let depth = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("camera depth"),
-            size: extent,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: DEPTH_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-            view_formats: &[],
-        });
-        let hdr_view = hdr.create_view(&Default::default());
-        let depth_view = depth.create_view(&Default::default());
-        (hdr, hdr_view, depth_view)
+    pub fn size(&self) -> (u32, u32) {
+        self.targets.size
+    }
+
+    /// The HDR result (linear radiance × exposure).
+    pub fn hdr(&self) -> (&wgpu::Texture, &wgpu::TextureView) {
+        (&self.targets.hdr, &self.targets.hdr_view)
     }
 
     /// Rebuilds the size-dependent targets.
     pub fn resize(&mut self, size: (u32, u32)) {
-        if size != self.size {
-            (self.hdr, self.hdr_view, self.depth_view) = Self::targets(&self.device, size);
-            self.size = size;
+        if size != self.targets.size {
+            self.targets = Targets::new(&self.device, size);
+            self.light_bind_group = None;
         }
     }
 
@@ -434,12 +488,9 @@ impl ShadingPass {
         self.lists_fit = self.list_raw.len() <= MAX_LIST;
         self.n_groups = grouping.groups.len() as u32;
         self.draw_raw.clear();
-        for entry in &self.lists_raw {
-            let slot = self.draw_raw.len();
-            self.draw_raw.resize(slot + self.draw_stride as usize, 0);
-            self.draw_raw[slot..slot + 8].copy_from_slice(bytemuck::cast_slice(entry));
-        }
-        queue.write_buffer(&self.draw_params, 0, &self.draw_raw);
+        self.draw_raw
+            .extend(self.lists_raw.iter().map(|&[offset, count]| [offset, count, 0, 0]));
+        queue.write_buffer(&self.draws, 0, bytemuck::cast_slice(&self.draw_raw));
         if !self.light_raw.is_empty() {
             queue.write_buffer(&self.lights, 0, bytemuck::cast_slice(&self.light_raw));
         }
@@ -482,9 +533,10 @@ impl ShadingPass {
 
     /// Writes the per-frame uniforms.
     pub fn upload_globals(&self, queue: &wgpu::Queue, camera: &Camera, p: &ShadingParams, texel_world: f32) {
-        let aspect = self.size.0 as f32 / self.size.1 as f32;
+        let (w, h) = self.targets.size;
+        let view_proj = camera.view_proj(w as f32 / h as f32);
+        queue.write_buffer(&self.camera, 0, bytemuck::cast_slice(&view_proj.to_cols_array()));
         let raw = GlobalsRaw {
-            view_proj: camera.view_proj(aspect).to_cols_array(),
             camera_pos: camera.eye.extend(1.0).to_array(),
             params: [
                 p.exposure,
@@ -502,55 +554,92 @@ impl ShadingPass {
         queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&raw));
     }
 
-    /// Records the pass.
+    /// Records the geometry and the lighting pass.
     pub fn draw(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
         scene: &SceneBuffers,
         shadow_view: &wgpu::TextureView,
         shadow_generation: u64,
-        cull: bool,
     ) {
-        if self.bound_generation != shadow_generation {
-            self.bind_group = None;
+        let t = &self.targets;
+        {
+            let clear = wgpu::Operations {
+                load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                store: wgpu::StoreOp::Store,
+            };
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("geometry pass"),
+                color_attachments: &t.gbuffer.each_ref().map(|view| {
+                    Some(wgpu::RenderPassColorAttachment {
+                        view,
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: clear,
+                    })
+                }),
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &t.depth,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.geometry_pipeline);
+            pass.set_bind_group(0, &self.camera_bind_group, &[]);
+            pass.set_vertex_buffer(0, scene.vertices.slice(..));
+            pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
+            // One draw per normal bucket; the instance index tells the pixel its bucket.
+            for (i, d) in scene.draws.iter().enumerate() {
+                pass.draw_indexed(d.range.clone(), 0, i as u32..i as u32 + 1);
+            }
         }
-        let bind_group = self.bind_group.get_or_insert_with(|| {
+        if self.bound_generation != shadow_generation {
+            self.light_bind_group = None;
+        }
+        let bind_group = self.light_bind_group.get_or_insert_with(|| {
+            fn buffer(binding: u32, b: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+                wgpu::BindGroupEntry {
+                    binding,
+                    resource: b.as_entire_binding(),
+                }
+            }
+            fn view(binding: u32, v: &wgpu::TextureView) -> wgpu::BindGroupEntry<'_> {
+                wgpu::BindGroupEntry {
+                    binding,
+                    resource: wgpu::BindingResource::TextureView(v),
+                }
+            }
             self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("shade"),
-                layout: &self.bind_group_layout,
+                label: Some("light"),
+                layout: &self.light_layout,
                 entries: &[
+                    buffer(0, &self.globals),
+                    buffer(1, &self.lights),
+                    buffer(2, &self.groups),
+                    buffer(3, &self.list),
+                    buffer(4, &self.draws),
+                    view(5, shadow_view),
                     wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: self.globals.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: self.lights.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: self.groups.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: self.list.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: wgpu::BindingResource::TextureView(shadow_view),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 5,
+                        binding: 6,
                         resource: wgpu::BindingResource::Sampler(&self.sampler),
                     },
+                    view(7, &self.targets.gbuffer[0]),
+                    view(8, &self.targets.gbuffer[1]),
+                    view(9, &self.targets.gbuffer[2]),
                 ],
             })
         });
         self.bound_generation = shadow_generation;
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("shade pass"),
+            label: Some("lighting pass"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &self.hdr_view,
+                view: &self.targets.hdr_view,
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
@@ -558,35 +647,14 @@ impl ShadingPass {
                     store: wgpu::StoreOp::Store,
                 },
             })],
-            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                view: &self.depth_view,
-                depth_ops: Some(wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(1.0),
-                    store: wgpu::StoreOp::Discard,
-                }),
-                stencil_ops: None,
-            }),
+            depth_stencil_attachment: None,
             timestamp_writes: None,
             occlusion_query_set: None,
             multiview_mask: None,
         });
-        pass.set_pipeline(&self.pipeline);
+        pass.set_pipeline(&self.light_pipeline);
         pass.set_bind_group(0, &*bind_group, &[]);
-        pass.set_vertex_buffer(0, scene.vertices.slice(..));
-        pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
-        // Casters come first in the index buffer: the mesh, in front, fills the depth buffer before
-        // the ground behind it is shaded.
-        if cull && self.lists_fit {
-            for (i, d) in scene.draws.iter().enumerate() {
-                pass.set_bind_group(1, &self.draw_bind_group, &[i as u32 * self.draw_stride]);
-                pass.draw_indexed(d.range.clone(), 0, 0..1);
-            }
-        } else {
-            // One draw with the list of every group (the last slot).
-            let all = scene.draws.len() as u32 * self.draw_stride;
-            pass.set_bind_group(1, &self.draw_bind_group, &[all]);
-            pass.draw_indexed(scene.all.clone(), 0, 0..1);
-        }
+        pass.draw(0..3, 0..1);
     }
 }
 

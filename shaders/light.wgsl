@@ -1,19 +1,19 @@
-// Shading pass: diffuse + normalized Blinn-Phong under many directional lights, one shadow map per
-// light group (src/render/shading.rs). Linear radiance × exposure goes to an Rgba32Float target.
+// Lighting pass: every pixel of the G-buffer lit by all light groups through their shadow maps
+// (src/render/shading.rs). Linear radiance × exposure goes to an Rgba32Float target.
 //
 // L_out = Σ_k E_k · f(l_k, v) · max(0, n·l_k) · V_k                      (DESIGN.md, "A light")
 // f(l, v) = ρ/π + k_s · (s + 8)/(8π) · (n·h)^s,  h = normalize(l + v)     (src/render/scene.rs)
 // No ambient term: the lights carry all of the map's energy.
 
 const PI: f32 = 3.14159265358979;
-// Mirror MAX_LIGHTS and MAX_LIST / 4 in src/render/shading.rs.
+// Mirror MAX_LIGHTS, MAX_LIST / 4 and MAX_DRAWS in src/render/shading.rs.
 const c_max_lights: u32 = 1024u;
 const c_max_list_vec4: u32 = 4096u;
+const c_max_draws: u32 = 256u;
 // Shadow lookups beyond this many taps are not offered (1 = one bilinear 2×2 PCF tap).
 const c_max_pcf_taps: u32 = 4u;
 
 struct Globals {
-    view_proj: mat4x4<f32>,
     camera_pos: vec4<f32>,
     // x: exposure; y: glossy-refinement threshold t (the lobe's fraction of its peak below which a
     // light gets diffuse only); z: normal offset of shadow lookups (world units); w: one shadow texel
@@ -40,66 +40,43 @@ struct Group {
     info: vec4<u32>,
 };
 
-// Uniform buffers rather than storage: see the note on `ShadingPass::lights` in shading.rs.
+// Uniform rather than storage buffers: lavapipe (Mesa 22.3) loads a storage buffer one SIMD lane at
+// a time.
 struct Lights { items: array<Light, c_max_lights> };
 struct Groups { items: array<Group, c_max_lights> };
 // Group indices, four to a vec4 (uniform arrays have a 16-byte stride).
 struct Lists { items: array<vec4<u32>, c_max_list_vec4> };
+// Per draw: xy = (offset, count) into u_lists of the groups that can reach the draw's normal cone.
+struct Draws { items: array<vec4<u32>, c_max_draws> };
 
 @group(0) @binding(0) var<uniform> u_globals: Globals;
 @group(0) @binding(1) var<uniform> u_lights: Lights;
 @group(0) @binding(2) var<uniform> u_groups: Groups;
-// The draws' lists of group indices (see u_draw).
 @group(0) @binding(3) var<uniform> u_lists: Lists;
-@group(0) @binding(4) var t_shadow: texture_depth_2d_array;
-@group(0) @binding(5) var s_shadow: sampler_comparison;
-
-struct DrawParams {
-    // (offset, count) into u_lists of the groups that can reach this draw's normal cone.
-    list: vec2<u32>,
-    pad: vec2<u32>,
-};
-// Set per draw (a dynamic offset), so every pixel of a draw loops over the same list: on a SIMD
-// rasterizer the loop and its loads stay uniform.
-@group(1) @binding(0) var<uniform> u_draw: DrawParams;
-
-struct VertexInput {
-    @location(0) position: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) albedo: vec3<f32>,
-    @location(3) gloss: vec2<f32>,
-};
-
-struct VertexOutput {
-    @builtin(position) clip: vec4<f32>,
-    @location(0) world: vec3<f32>,
-    @location(1) normal: vec3<f32>,
-    @location(2) albedo: vec3<f32>,
-    @location(3) gloss: vec2<f32>,
-};
+@group(0) @binding(4) var<uniform> u_draws: Draws;
+@group(0) @binding(5) var t_shadow: texture_depth_2d_array;
+@group(0) @binding(6) var s_shadow: sampler_comparison;
+@group(0) @binding(7) var t_position: texture_2d<f32>;
+@group(0) @binding(8) var t_normal: texture_2d<f32>;
+@group(0) @binding(9) var t_material: texture_2d<f32>;
 
 @vertex
-fn vs_main(in: VertexInput) -> VertexOutput {
-    var out: VertexOutput;
-    out.clip = u_globals.view_proj * vec4<f32>(in.position, 1.0);
-    out.world = in.position;
-    out.normal = in.normal;
-    out.albedo = in.albedo;
-    out.gloss = in.gloss;
-    return out;
+fn vs_light(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
+    // One triangle covering the viewport: (−1,−1), (3,−1), (−1,3).
+    let xy = vec2<f32>(f32((i << 1u) & 2u), f32(i & 2u)) * 2.0 - vec2<f32>(1.0);
+    return vec4<f32>(xy, 0.0, 1.0);
 }
 
-// Fraction of the group's shadow map that sees `world` lit (PCF).
+// Fraction of group gi's shadow map that sees `world` lit (PCF).
 fn visibility(gi: u32, world: vec3<f32>, n: vec3<f32>) -> f32 {
     let layer = u_groups.items[gi].info.x;
     if layer == 0xffffffffu || u_globals.flags.z == 0u {
         return 1.0;
     }
     // Offset along the normal so a surface does not shadow itself (shadow acne).
-    let p = world + n * u_globals.params.z;
+    let p = vec4<f32>(world + n * u_globals.params.z, 1.0);
     let rows = u_groups.items[gi].rows;
-    let p1 = vec4<f32>(p, 1.0);
-    let clip = vec3<f32>(dot(rows[0], p1), dot(rows[1], p1), dot(rows[2], p1));
+    let clip = vec3<f32>(dot(rows[0], p), dot(rows[1], p), dot(rows[2], p));
     // Compensate for the Y-flip difference between NDC and texture coordinates.
     let uv = clip.xy * vec2<f32>(0.5, -0.5) + vec2<f32>(0.5);
     if any(uv < vec2<f32>(0.0)) || any(uv > vec2<f32>(1.0)) {
@@ -121,22 +98,31 @@ fn visibility(gi: u32, world: vec3<f32>, n: vec3<f32>) -> f32 {
 }
 
 @fragment
-fn fs_main(in: VertexOutput) -> @location(0) vec4<f32> {
-    let n = normalize(in.normal);
-    let v = normalize(u_globals.camera_pos.xyz - in.world);
+fn fs_light(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
+    let texel = vec2<i32>(frag.xy);
+    let g_normal = textureLoad(t_normal, texel, 0);
+    if dot(g_normal.xyz, g_normal.xyz) == 0.0 {
+        return vec4<f32>(0.0, 0.0, 0.0, 1.0); // background: nothing drawn here
+    }
+    let g_position = textureLoad(t_position, texel, 0);
+    let g_material = textureLoad(t_material, texel, 0);
+    let world = g_position.xyz;
+    let n = g_normal.xyz;
+    let v = normalize(u_globals.camera_pos.xyz - world);
     let r = reflect(-v, n);
-    let diffuse = in.albedo / PI;
-    let ks = in.gloss.x;
-    let s = in.gloss.y;
+    let diffuse = g_material.rgb / PI;
+    let ks = g_normal.w;
+    let s = max(g_material.a * 255.0, 1.0);
     let lobe_norm = ks * (s + 8.0) / (8.0 * PI);
     // The lobe (n·h)^s falls below t of its peak for n·h < t^(1/s), i.e. for lights farther than
     // 2·acos(t^(1/s)) from the reflected view direction: cos 2x = 2 cos² x − 1.
     let cos_cone = 2.0 * pow(u_globals.params.y, 2.0 / s) - 1.0;
     let refine = u_globals.flags.y != 0u;
 
-    // Culling on: this draw's list. Off: every group, in order.
+    // Culling on: the list of the pixel's draw (its normal bucket). Off: every group, in order.
     let culled = u_globals.flags.x != 0u;
-    let list = select(vec2<u32>(0u, u_globals.flags.w), u_draw.list, culled);
+    let draw = min(u32(g_position.w), c_max_draws - 1u);
+    let list = select(vec2<u32>(0u, u_globals.flags.w), u_draws.items[draw].xy, culled);
     var radiance = vec3<f32>(0.0);
     for (var i = 0u; i < list.y; i++) {
         var gi = i;
@@ -145,12 +131,9 @@ fn fs_main(in: VertexOutput) -> @location(0) vec4<f32> {
             gi = u_lists.items[e >> 2u][e & 3u];
         }
         let info = u_groups.items[gi].info;
-        let first = info.y;
-        let end = first + info.z;
         var sum = vec3<f32>(0.0);
-        // No early `continue` for lights behind the surface: a divergent continue would make the
-        // loop, and every load in it, divergent across the SIMD lanes; max(0, n·l) costs less.
-        for (var k = first; k < end; k++) {
+        // No early `continue` for lights behind the surface: max(0, n·l) keeps the loop uniform.
+        for (var k = info.y; k < info.y + info.z; k++) {
             let l = u_lights.items[k].to_light.xyz;
             let ndl = max(dot(n, l), 0.0);
             var f = diffuse;
@@ -162,7 +145,7 @@ fn fs_main(in: VertexOutput) -> @location(0) vec4<f32> {
         }
         // Only lights that reach the surface pay for a shadow lookup.
         if any(sum > vec3<f32>(0.0)) {
-            radiance += sum * visibility(gi, in.world, n);
+            radiance += sum * visibility(gi, world, n);
         }
     }
     return vec4<f32>(radiance * u_globals.params.x, 1.0);
