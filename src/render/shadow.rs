@@ -8,7 +8,7 @@
 //! its old matrix stay in use, which is exact for a steady light and off by at most ε for a moving one.
 
 use super::cluster::Group;
-use super::scene::{DrawRange, Scene, Vertex};
+use super::scene::{Scene, Vertex};
 use glam::{Mat4, Vec3};
 use std::collections::HashMap;
 
@@ -434,21 +434,17 @@ impl ShadowMaps {
 /// The scene's vertex and index buffers on the device.
 pub struct SceneBuffers {
     pub vertices: wgpu::Buffer,
-    /// Indices bucketed by normal bin ([`Scene::bucketed`]), casters first.
+    /// Casters first.
     pub indices: wgpu::Buffer,
     /// Index range of the shadow casters, and of everything.
     pub casters: std::ops::Range<u32>,
     pub all: std::ops::Range<u32>,
-    /// The draws of the shading pass, each with its normal cone.
-    pub draws: Vec<DrawRange>,
 }
 
 impl SceneBuffers {
     pub fn new(device: &wgpu::Device, scene: &Scene) -> SceneBuffers {
         use wgpu::util::DeviceExt;
         let (casters, all) = scene.index_ranges();
-        let (indices, draws) = scene.bucketed(super::shading::BIN_SIDE);
-        debug_assert_eq!(indices.len(), scene.indices.len());
         SceneBuffers {
             vertices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("scene vertices"),
@@ -457,12 +453,11 @@ impl SceneBuffers {
             }),
             indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("scene indices"),
-                contents: bytemuck::cast_slice(&indices),
+                contents: bytemuck::cast_slice(&scene.indices),
                 usage: wgpu::BufferUsages::INDEX,
             }),
             casters,
             all,
-            draws,
         }
     }
 }

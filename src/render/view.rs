@@ -251,6 +251,19 @@ fn headless(args: &ViewArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// CPU time this process has used, all threads (lavapipe renders on worker threads), in ms;
+/// `None` off Linux. On a shared machine it is a steadier measure than wall time.
+fn cpu_ms() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may hold spaces) start at the last ')'.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split(' ').collect();
+    // utime and stime are fields 14 and 15 of stat(5), 12 and 13 after the name; clock ticks of
+    // 1/100 s on Linux.
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks * 10.0)
+}
+
 /// Median of a list of milliseconds.
 fn median(v: &mut [f64]) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -329,10 +342,14 @@ fn bench(args: &ViewArgs) -> anyhow::Result<()> {
         renderer.set_lights(&set.lights);
         let mut times = Vec::with_capacity(frames as usize);
         let mut summary = FrameSummary::default();
+        let mut cpu_start = None;
         for i in 0..WARMUP + frames {
             if turn != 0.0 {
                 turned(&set.lights, turn * i as f32, &mut scratch);
                 renderer.set_lights(&scratch);
+            }
+            if i == WARMUP {
+                cpu_start = cpu_ms();
             }
             let t0 = Instant::now();
             let stats = renderer.render_headless(&camera, &Status::default());
@@ -343,9 +360,13 @@ fn bench(args: &ViewArgs) -> anyhow::Result<()> {
                 summary.add(&stats);
             }
         }
+        let cpu_per_frame = match (cpu_start, cpu_ms()) {
+            (Some(a), Some(b)) => format!("{:.1} ms", (b - a) / frames as f64),
+            _ => "n/a".into(),
+        };
         let med = median(&mut times);
         println!(
-            "{name:>28}: median {med:7.2} ms = {:6.2} frames/s  (min {:.2} ms, max {:.2} ms; {:.1} shadow maps in use, {:.1} drawn per frame)",
+            "{name:>26}: median {med:7.2} ms = {:6.2} frames/s  (min {:.2}, max {:.2} ms; CPU {cpu_per_frame}/frame; {:.1} shadow maps in use, {:.1} drawn per frame)",
             1e3 / med,
             times.first().copied().unwrap_or(f64::NAN),
             times.last().copied().unwrap_or(f64::NAN),
