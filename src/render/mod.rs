@@ -134,7 +134,7 @@ impl Renderer {
         let device = gpu.device.clone();
         let scene_buffers = SceneBuffers::new(&device, scene);
         let shadows = ShadowMaps::new(gpu, ShadowFit::for_scene(scene), options.shadow_size);
-        let shading = ShadingPass::new(&device, size);
+        let shading = ShadingPass::new(&device, size, scene_buffers.draws.len());
         let tonemap = TonemapPass::new(&device, format, shading.hdr().1);
         let overlay = OverlayPass::new(&device, format);
         Renderer {
@@ -234,15 +234,17 @@ impl Renderer {
             reuse_cos,
             &mut self.group_shadows,
         );
-        // The windows carry each group's shadow matrix: repack when the lights or a map changed.
-        if self.lights_dirty || maps_drawn > 0 {
+        if self.lights_dirty {
             self.shading.upload_lights(
                 &self.queue,
                 &self.lights,
                 &self.grouping,
-                &self.group_shadows,
-                o.cull,
+                &self.scene.draws,
             );
+        }
+        if self.lights_dirty || maps_drawn > 0 {
+            self.shading
+                .upload_groups(&self.queue, &self.grouping.groups, &self.group_shadows);
         }
         self.lights_dirty = false;
         let params = ShadingParams {
@@ -340,14 +342,10 @@ impl Renderer {
         image::RgbaImage::from_raw(w, h, bytes).expect("size matches")
     }
 
-    /// The last frame's linear HDR target (radiance × exposure), RGBA, rows top to bottom.
+    /// The last frame's linear HDR target (radiance × exposure), RGBA f32, rows top to bottom.
     pub fn read_hdr(&self) -> Vec<[f32; 4]> {
-        let bytes = self.read_texture(self.shading.hdr().0, 8);
-        let halves: Vec<u16> = bytemuck::pod_collect_to_vec(&bytes);
-        halves
-            .chunks_exact(4)
-            .map(|p| [0, 1, 2, 3].map(|c| f16_to_f32(p[c])))
-            .collect()
+        let bytes = self.read_texture(self.shading.hdr().0, 16);
+        bytemuck::pod_collect_to_vec(&bytes)
     }
 
     /// Copies a texture to the CPU (rows padded to 256 bytes on the way, unpadded here).
@@ -395,19 +393,6 @@ impl Renderer {
     }
 }
 
-/// IEEE 754 binary16 → f32 (the HDR target is Rgba16Float).
-pub fn f16_to_f32(h: u16) -> f32 {
-    let sign = if h & 0x8000 != 0 { -1.0 } else { 1.0 };
-    let exp = ((h >> 10) & 0x1f) as i32;
-    let frac = (h & 0x3ff) as f32;
-    sign * match exp {
-        0 => frac * 2f32.powi(-24),                      // subnormal
-        31 if frac == 0.0 => f32::INFINITY,
-        31 => f32::NAN,
-        e => (1.0 + frac / 1024.0) * 2f32.powi(e - 15),
-    }
-}
-
 /// An exposure that puts a grey (ρ = 0.5) horizontal surface under the lights at about 60 % of the
 /// display's range after the tonemap: radiance 0.5/π · E_up, where E_up = Σ E_k · max(0, l_k.y).
 pub fn auto_exposure(lights: &[Light]) -> f32 {
@@ -424,17 +409,5 @@ pub fn auto_exposure(lights: &[Light]) -> f32 {
         0.92 / radiance
     } else {
         1.0
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn half_floats_decode() {
-        assert_eq!(super::f16_to_f32(0x3c00), 1.0);
-        assert_eq!(super::f16_to_f32(0xc000), -2.0);
-        assert_eq!(super::f16_to_f32(0x3555), 0.333_251_95);
-        assert_eq!(super::f16_to_f32(0x0001), 2f32.powi(-24));
-        assert_eq!(super::f16_to_f32(0x7bff), 65504.0);
     }
 }

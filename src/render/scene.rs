@@ -326,6 +326,74 @@ impl Scene {
     }
 }
 
+/// A run of triangles drawn in one call, with the cone that holds all their vertex normals.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DrawRange {
+    /// Index range in [`Scene::bucketed`]'s index list.
+    pub range: Range<u32>,
+    /// Cone axis (unit) and sin of its half-angle α; `sin_alpha = 1` when α ≥ 90°.
+    pub axis: Vec3,
+    pub sin_alpha: f32,
+}
+
+impl Scene {
+    /// The index list reordered by normal bin (B × B octahedral bins of each triangle's mean vertex
+    /// normal), casters still first, and one [`DrawRange`] per non-empty (casters/receivers, bin).
+    /// A light can reach a triangle of a range only if to_light·axis > −sin α (ALGORITHMS.md §6),
+    /// so the shading pass gives each range the short list of lights that pass.
+    pub fn bucketed(&self, side: u32) -> (Vec<u32>, Vec<DrawRange>) {
+        let normal = |i: u32| Vec3::from_array(self.vertices[i as usize].normal);
+        let mut indices = Vec::with_capacity(self.indices.len());
+        let mut draws = Vec::new();
+        let (casters, all) = self.index_ranges();
+        for part in [casters, self.caster_indices..all.end] {
+            let tris = &self.indices[part.start as usize..part.end as usize];
+            let mut keyed: Vec<(u32, [u32; 3])> = tris
+                .chunks_exact(3)
+                .map(|t| {
+                    let mean = normal(t[0]) + normal(t[1]) + normal(t[2]);
+                    let bin = super::shading::bin_of(mean.normalize_or(Vec3::Y), side);
+                    (bin, [t[0], t[1], t[2]])
+                })
+                .collect();
+            // Stable: triangles keep their order within a bin.
+            keyed.sort_by_key(|(bin, _)| *bin);
+            let mut start = 0;
+            while start < keyed.len() {
+                let bin = keyed[start].0;
+                let end = start + keyed[start..].iter().take_while(|(b, _)| *b == bin).count();
+                let first = indices.len() as u32;
+                let run = &keyed[start..end];
+                let axis = run
+                    .iter()
+                    .flat_map(|(_, t)| t.map(normal))
+                    .sum::<Vec3>()
+                    .normalize_or(Vec3::Y);
+                let alpha = run
+                    .iter()
+                    .flat_map(|(_, t)| t.map(normal))
+                    .map(|n| axis.dot(n).clamp(-1.0, 1.0).acos())
+                    .fold(0.0f32, f32::max)
+                    + 1e-3; // rounding margin
+                for (_, t) in run {
+                    indices.extend_from_slice(t);
+                }
+                draws.push(DrawRange {
+                    range: first..indices.len() as u32,
+                    axis,
+                    sin_alpha: if alpha >= std::f32::consts::FRAC_PI_2 {
+                        1.0
+                    } else {
+                        alpha.sin()
+                    },
+                });
+                start = end;
+            }
+        }
+        (indices, draws)
+    }
+}
+
 /// A perspective camera looking at a point.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {

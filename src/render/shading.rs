@@ -1,47 +1,44 @@
 //! Shading, deferred: a geometry pass writes what each pixel sees (`shaders/gbuffer.wgsl`), then a
-//! lighting pass lights every pixel by the light groups through their shadow maps, into a linear HDR
-//! target (`shaders/light.wgsl`).
+//! lighting pass lights every pixel once by all light groups through their shadow maps, into a
+//! linear HDR target (`shaders/light.wgsl`); and the normal cones that cull lights per draw.
 //!
 //! Input: the grouped lights ([`Grouping`]), each group's [`GroupShadow`], the camera. Output: the
-//! HDR target (linear radiance × exposure, Rgba16Float) that the tonemap pass displays and the tests
+//! HDR target (linear radiance × exposure, Rgba32Float) that the tonemap pass displays and the tests
 //! read back.
 //!
-//! Two things shape this pass on lavapipe (Mesa's software Vulkan), where the figures of issue 4 are
-//! taken. Fragment shaders run on 4 × 4 pixel blocks, so a mesh of sub-pixel triangles (the
-//! full-resolution bunny at 320 × 240) would run a many-light loop many times per covered pixel: the
-//! geometry pass pays for those triangles with a trivial shader and the lighting pass is one
-//! full-screen triangle. And a uniform array indexed by a loop counter is loaded one SIMD lane at a
-//! time, which costs more than the shading: so the lights go in windows of [`WINDOW`], one draw per
-//! window (a dynamic uniform offset), and the shader reads slot j of the window with j a constant.
-//! The draws add up in the target.
+//! Why deferred: lavapipe runs fragment shaders on 4 × 4 pixel blocks, so a mesh of sub-pixel
+//! triangles (the full-resolution bunny at 320 × 240) would run the many-light loop many times per
+//! covered pixel. The geometry pass pays that with a trivial shader; the lighting pass is one
+//! full-screen triangle.
 //!
-//! Culling by normal extent (ALGORITHMS.md §6), per pixel, whose normal n is exact here: a group of
-//! lights whose directions lie in a cone (axis a, half-angle β) can light n only if n·a > −sin β.
-//! Groups are ordered by direction so that each window's lights are close together, and a pixel
-//! outside a window's cone skips the whole draw; inside, it skips the groups whose cone it is outside.
+//! Culling by normal extent (ALGORITHMS.md §6): the scene's triangles are bucketed by normal into
+//! B × B bins of the octahedral map and drawn one bucket per call ([`Scene::bucketed`]). A bucket's
+//! vertex normals lie in a cone (axis a, half-angle α), and a light can reach one of its pixels only
+//! if to_light·a > −sin α. Each draw gets the list of groups with such a member; the geometry pass
+//! stores the draw's number per pixel, and the lighting pass loops over that draw's list only.
+//!
+//! [`Scene::bucketed`]: super::scene::Scene::bucketed
 
 use super::cluster::{Group, Grouping};
-use super::scene::{Camera, Vertex};
-use super::shadow::{GroupShadow, NO_LAYER, SceneBuffers};
+use super::scene::{Camera, DrawRange, Vertex};
+use super::shadow::{GroupShadow, SceneBuffers};
 use crate::lights::Light;
 use glam::{Vec2, Vec3};
 
-/// G-buffer formats: position, normal + k_s, albedo + shininess.
+/// G-buffer formats: position + draw, normal + k_s, albedo + shininess.
 pub const GBUFFER_FORMATS: [wgpu::TextureFormat; 3] = [
     wgpu::TextureFormat::Rgba32Float,
     wgpu::TextureFormat::Rgba32Float,
     wgpu::TextureFormat::Rgba8Unorm,
 ];
-/// Format of the HDR target (blendable, unlike Rgba32Float without an optional feature).
-pub const HDR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
+/// Draws the lighting pass knows lists for (`c_max_draws` in light.wgsl).
+pub const MAX_DRAWS: usize = 256;
+/// Format of the HDR target.
+pub const HDR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Format of the camera's depth buffer.
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-/// Lights per lighting draw (`c_window` in light.wgsl).
-pub const WINDOW: usize = 16;
-/// Lights the renderer shades at most (the progressive prefix beyond is cut).
-pub const MAX_LIGHTS: usize = 1024;
-/// A cone that every normal passes (culling off): n·a > −2 always.
-const NO_CULL: [f32; 4] = [0.0, 1.0, 0.0, -2.0];
+/// Side B of the B × B grid of normal bins (64 bins of about 25°).
+pub const BIN_SIDE: u32 = 8;
 
 /// `Globals` in light.wgsl.
 #[repr(C)]
@@ -52,34 +49,40 @@ struct GlobalsRaw {
     flags: [u32; 4],
 }
 
-/// `Light` in light.wgsl: one slot of a window.
+/// `Light` in light.wgsl.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct LightRaw {
-    /// xyz toward the light; w: 0 light, 1 light and end of its group here, 2 empty.
-    pub dir: [f32; 4],
-    /// rgb radiance × sr; w: shadow layer or −1.
-    pub irradiance: [f32; 4],
-    /// The group's shadow matrix, rows 0..3.
-    pub shadow: [[f32; 4]; 3],
-    /// The group's cone: axis, −sin β.
-    pub cone: [f32; 4],
+    to_light: [f32; 4],
+    irradiance: [f32; 4],
 }
 
-const EMPTY_SLOT: LightRaw = LightRaw {
-    dir: [0.0, 1.0, 0.0, 2.0],
-    irradiance: [0.0, 0.0, 0.0, -1.0],
-    shadow: [[0.0; 4]; 3],
-    cone: NO_CULL,
-};
+impl LightRaw {
+    pub fn from_light(l: &Light) -> LightRaw {
+        let [x, y, z] = l.to_light;
+        let [r, g, b] = l.irradiance;
+        LightRaw {
+            to_light: [x, y, z, 0.0],
+            irradiance: [r, g, b, 0.0],
+        }
+    }
+}
 
-/// `Window` in light.wgsl.
+/// `Group` in light.wgsl.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct WindowRaw {
-    pub cone: [f32; 4],
-    pub lights: [LightRaw; WINDOW],
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct GroupRaw {
+    /// The first three rows of the world → shadow-clip matrix (orthographic: the fourth is 0 0 0 1).
+    rows: [[f32; 4]; 3],
+    /// layer, first, count, unused.
+    info: [u32; 4],
 }
+
+/// Lights (and groups) the shading pass holds: the uniform arrays in light.wgsl are this long.
+pub const MAX_LIGHTS: usize = 1024;
+/// Entries of the draws' group lists (`c_max_list_vec4` × 4 in light.wgsl). A set whose lists
+/// would not fit is shaded without culling.
+pub const MAX_LIST: usize = 16384;
 
 /// The switches of the shading pass (see [`super::Options`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -96,7 +99,8 @@ pub struct ShadingParams {
     pub shadow_size: u32,
 }
 
-/// Octahedral map of a unit vector to [0,1]², +Y at the centre.
+/// Octahedral map of a unit vector to [0,1]², +Y at the centre (matches `octahedral_encode` in
+/// light.wgsl).
 pub fn octahedral_encode(n: Vec3) -> Vec2 {
     let mut p = Vec2::new(n.x, n.z) / (n.x.abs() + n.y.abs() + n.z.abs());
     if n.y < 0.0 {
@@ -109,7 +113,23 @@ pub fn octahedral_encode(n: Vec3) -> Vec2 {
     p * 0.5 + Vec2::splat(0.5)
 }
 
-/// Bin of a unit direction in a B × B grid of the octahedral map (`side` = B).
+/// Inverse of [`octahedral_encode`].
+pub fn octahedral_decode(uv: Vec2) -> Vec3 {
+    let p = uv * 2.0 - Vec2::ONE;
+    let y = 1.0 - p.x.abs() - p.y.abs();
+    let (x, z) = if y < 0.0 {
+        // The lower hemisphere is folded over the square's corners; unfold it.
+        (
+            (1.0 - p.y.abs()) * p.x.signum(),
+            (1.0 - p.x.abs()) * p.y.signum(),
+        )
+    } else {
+        (p.x, p.y)
+    };
+    Vec3::new(x, y, z).normalize()
+}
+
+/// Bin of a unit normal in the B × B octahedral grid (`side` = B).
 pub fn bin_of(n: Vec3, side: u32) -> u32 {
     let uv = octahedral_encode(n) * side as f32;
     let i = (uv.x as u32).min(side - 1);
@@ -117,80 +137,36 @@ pub fn bin_of(n: Vec3, side: u32) -> u32 {
     j * side + i
 }
 
-/// The cone (axis, −sin β) around a set of unit directions, as the shader tests it:
-/// n·axis > −sin β. `NO_CULL` when β ≥ 90°, where −sin β stops being a valid bound.
-fn cone_of(dirs: impl Iterator<Item = Vec3> + Clone) -> [f32; 4] {
-    let axis = dirs.clone().sum::<Vec3>().normalize_or(Vec3::Y);
-    let beta = dirs
-        .map(|d| axis.dot(d).clamp(-1.0, 1.0).acos())
-        .fold(0.0f32, f32::max)
-        + 1e-3; // rounding margin
-    if beta >= std::f32::consts::FRAC_PI_2 {
-        NO_CULL
-    } else {
-        [axis.x, axis.y, axis.z, -beta.sin()]
-    }
-}
-
-/// Packs the lights into windows of [`WINDOW`] slots: groups ordered by direction (a 4 × 4
-/// octahedral grid of their axes, then their key), each group's members contiguous, each slot
-/// carrying its group's shadow map and cone, the last slot of a group in each window flagged.
-pub fn build_windows(
+/// Per draw, (offset, count) into `list` of the groups that can reach the draw's normal cone; then
+/// one more entry listing every group (culling off).
+pub fn draw_lists(
+    draws: &[DrawRange],
     lights: &[Light],
     grouping: &Grouping,
-    shadows: &[GroupShadow],
-    cull: bool,
-    order: &mut Vec<usize>,
-    out: &mut Vec<WindowRaw>,
+    lists: &mut Vec<[u32; 2]>,
+    list: &mut Vec<u32>,
 ) {
-    out.clear();
-    order.clear();
-    order.extend(0..grouping.groups.len());
-    order.sort_by_key(|&g| (bin_of(grouping.groups[g].axis, 4), grouping.groups[g].key));
-    let mut slot = WINDOW; // "the current window is full"
-    for &gi in order.iter() {
-        let g: &Group = &grouping.groups[gi];
-        let s = shadows[gi];
-        let members = &grouping.order[g.first as usize..(g.first + g.count) as usize];
-        let dir = |i: &u32| Vec3::from_array(lights[*i as usize].to_light).normalize_or(Vec3::Y);
-        let cone = if cull { cone_of(members.iter().map(dir)) } else { NO_CULL };
-        let rows = [0, 1, 2].map(|r| s.view_proj.row(r).to_array());
-        let layer = if s.layer == NO_LAYER { -1.0 } else { s.layer as f32 };
-        for (m, &i) in members.iter().enumerate() {
-            if slot == WINDOW {
-                out.push(WindowRaw {
-                    cone: NO_CULL,
-                    lights: [EMPTY_SLOT; WINDOW],
-                });
-                slot = 0;
+    lists.clear();
+    list.clear();
+    for d in draws {
+        let offset = list.len() as u32;
+        for (gi, g) in grouping.groups.iter().enumerate() {
+            let members = &grouping.order[g.first as usize..(g.first + g.count) as usize];
+            let reaches = members
+                .iter()
+                .any(|&i| Vec3::from_array(lights[i as usize].to_light).dot(d.axis) > -d.sin_alpha);
+            if reaches {
+                list.push(gi as u32);
             }
-            let l = &lights[i as usize];
-            let d = dir(&i);
-            let last = m + 1 == members.len() || slot + 1 == WINDOW;
-            out.last_mut().expect("a window").lights[slot] = LightRaw {
-                dir: [d.x, d.y, d.z, if last { 1.0 } else { 0.0 }],
-                irradiance: [l.irradiance[0], l.irradiance[1], l.irradiance[2], layer],
-                shadow: rows,
-                cone,
-            };
-            slot += 1;
         }
+        lists.push([offset, list.len() as u32 - offset]);
     }
-    for w in out.iter_mut() {
-        w.cone = if cull {
-            cone_of(
-                w.lights
-                    .iter()
-                    .filter(|l| l.dir[3] < 1.5)
-                    .map(|l| Vec3::new(l.dir[0], l.dir[1], l.dir[2])),
-            )
-        } else {
-            NO_CULL
-        };
-    }
+    let offset = list.len() as u32;
+    list.extend(0..grouping.groups.len() as u32);
+    lists.push([offset, grouping.groups.len() as u32]);
 }
 
-/// A uniform buffer.
+/// A uniform buffer of fixed size.
 fn uniform_buffer(device: &wgpu::Device, label: &str, size: usize) -> wgpu::Buffer {
     device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),
@@ -264,12 +240,13 @@ pub struct ShadingPass {
     light_pipeline: wgpu::RenderPipeline,
     light_layout: wgpu::BindGroupLayout,
     globals: wgpu::Buffer,
-    /// The windows of lights, one per `window_stride` bytes, bound one at a time (dynamic offset).
-    windows: wgpu::Buffer,
-    window_layout: wgpu::BindGroupLayout,
-    window_bind_group: wgpu::BindGroup,
-    window_stride: u64,
-    n_windows: u32,
+    lights: wgpu::Buffer,
+    groups: wgpu::Buffer,
+    list: wgpu::Buffer,
+    draws: wgpu::Buffer,
+    /// Whether this set's lists fit [`MAX_LIST`] (otherwise culling is off for it).
+    lists_fit: bool,
+    n_groups: u32,
     sampler: wgpu::Sampler,
     /// Rebuilt when the targets or the shadow array change.
     light_bind_group: Option<wgpu::BindGroup>,
@@ -277,13 +254,16 @@ pub struct ShadingPass {
     bound_generation: u64,
     targets: Targets,
     // CPU staging, reused between uploads.
-    window_raw: Vec<WindowRaw>,
-    window_bytes: Vec<u8>,
-    group_order: Vec<usize>,
+    light_raw: Vec<LightRaw>,
+    group_raw: Vec<GroupRaw>,
+    lists_raw: Vec<[u32; 2]>,
+    list_raw: Vec<u32>,
+    draw_raw: Vec<[u32; 4]>,
 }
 
 impl ShadingPass {
-    pub fn new(device: &wgpu::Device, size: (u32, u32)) -> ShadingPass {
+    pub fn new(device: &wgpu::Device, size: (u32, u32), draws: usize) -> ShadingPass {
+        assert!(draws < MAX_DRAWS, "{draws} draws; the lighting pass knows {MAX_DRAWS}");
         // The geometry pass.
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("gbuffer.wgsl"),
@@ -331,7 +311,12 @@ impl ShadingPass {
                     ],
                 })],
             },
-            primitive: wgpu::PrimitiveState::default(),
+            // Meshes are closed and wound counter-clockwise outward (OBJ's convention, and the boxes'),
+            // the ground faces up toward the camera: back faces are never seen.
+            primitive: wgpu::PrimitiveState {
+                cull_mode: Some(wgpu::Face::Back),
+                ..Default::default()
+            },
             depth_stencil: Some(wgpu::DepthStencilState {
                 format: DEPTH_FORMAT,
                 depth_write_enabled: Some(true),
@@ -355,6 +340,16 @@ impl ShadingPass {
             label: Some("light.wgsl"),
             source: wgpu::ShaderSource::Wgsl(include_str!("../../shaders/light.wgsl").into()),
         });
+        let uniform = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
         let texture = |binding| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::FRAGMENT,
@@ -369,18 +364,13 @@ impl ShadingPass {
         let light_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("light"),
             entries: &[
+                uniform(0),
+                uniform(1),
+                uniform(2),
+                uniform(3),
+                uniform(4),
                 wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
+                    binding: 5,
                     visibility: wgpu::ShaderStages::FRAGMENT,
                     ty: wgpu::BindingType::Texture {
                         sample_type: wgpu::TextureSampleType::Depth,
@@ -390,32 +380,19 @@ impl ShadingPass {
                     count: None,
                 },
                 wgpu::BindGroupLayoutEntry {
-                    binding: 2,
+                    binding: 6,
                     visibility: wgpu::ShaderStages::FRAGMENT,
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
                     count: None,
                 },
-                texture(3),
-                texture(4),
-                texture(5),
+                texture(7),
+                texture(8),
+                texture(9),
             ],
-        });
-        let window_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("light window"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::FRAGMENT,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: true,
-                    min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<WindowRaw>() as u64),
-                },
-                count: None,
-            }],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("light"),
-            bind_group_layouts: &[Some(&light_layout), Some(&window_layout)],
+            bind_group_layouts: &[Some(&light_layout)],
             immediate_size: 0,
         });
         let light_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
@@ -434,27 +411,11 @@ impl ShadingPass {
                 module: &shader,
                 entry_point: Some("fs_light"),
                 compilation_options: Default::default(),
-                // The windows add up.
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: HDR_FORMAT,
-                    blend: Some(wgpu::BlendState {
-                        color: wgpu::BlendComponent {
-                            src_factor: wgpu::BlendFactor::One,
-                            dst_factor: wgpu::BlendFactor::One,
-                            operation: wgpu::BlendOperation::Add,
-                        },
-                        alpha: wgpu::BlendComponent::REPLACE,
-                    }),
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
+                targets: &[Some(HDR_FORMAT.into())],
             }),
             multiview_mask: None,
             cache: None,
         });
-        let align = device.limits().min_uniform_buffer_offset_alignment as u64;
-        let window_stride = (std::mem::size_of::<WindowRaw>() as u64).div_ceil(align) * align;
-        let (windows, window_bind_group) =
-            Self::window_buffer(device, &window_layout, MAX_LIGHTS.div_ceil(WINDOW) as u64 * window_stride);
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("shadow compare"),
             address_mode_u: wgpu::AddressMode::ClampToEdge,
@@ -475,40 +436,22 @@ impl ShadingPass {
             light_pipeline,
             light_layout,
             globals: uniform_buffer(device, "light globals", std::mem::size_of::<GlobalsRaw>()),
-            windows,
-            window_layout,
-            window_bind_group,
-            window_stride,
-            n_windows: 0,
+            lights: uniform_buffer(device, "lights", MAX_LIGHTS * std::mem::size_of::<LightRaw>()),
+            groups: uniform_buffer(device, "groups", MAX_LIGHTS * std::mem::size_of::<GroupRaw>()),
+            list: uniform_buffer(device, "draw light lists", MAX_LIST * 4),
+            draws: uniform_buffer(device, "draws", MAX_DRAWS * 16),
+            lists_fit: true,
+            n_groups: 0,
             sampler,
             light_bind_group: None,
             bound_generation: u64::MAX,
             targets: Targets::new(device, size),
-            window_raw: Vec::new(),
-            window_bytes: Vec::new(),
-            group_order: Vec::new(),
+            light_raw: Vec::new(),
+            group_raw: Vec::new(),
+            lists_raw: Vec::new(),
+            list_raw: Vec::new(),
+            draw_raw: Vec::new(),
         }
-    }
-
-    fn window_buffer(
-        device: &wgpu::Device,
-        layout: &wgpu::BindGroupLayout,
-        size: u64,
-    ) -> (wgpu::Buffer, wgpu::BindGroup) {
-        let buffer = uniform_buffer(device, "light windows", size as usize);
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("light window"),
-            layout,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer: &buffer,
-                    offset: 0,
-                    size: wgpu::BufferSize::new(std::mem::size_of::<WindowRaw>() as u64),
-                }),
-            }],
-        });
-        (buffer, bind_group)
     }
 
     pub fn size(&self) -> (u32, u32) {
@@ -528,38 +471,69 @@ impl ShadingPass {
         }
     }
 
-    /// Packs and uploads the windows of lights; call when the lights or their shadow maps change.
+    /// Uploads the lights (in group order) and each draw's list of groups; call when the lights
+    /// change.
     pub fn upload_lights(
         &mut self,
         queue: &wgpu::Queue,
         lights: &[Light],
         grouping: &Grouping,
-        shadows: &[GroupShadow],
-        cull: bool,
+        draws: &[DrawRange],
     ) {
-        build_windows(lights, grouping, shadows, cull, &mut self.group_order, &mut self.window_raw);
-        self.n_windows = self.window_raw.len() as u32;
-        let stride = self.window_stride as usize;
-        let size = self.window_raw.len() * stride;
-        if size as u64 > self.windows.size() {
-            // More than MAX_LIGHTS' worth of windows (groups straddling windows add a few).
-            (self.windows, self.window_bind_group) =
-                Self::window_buffer(&self.device, &self.window_layout, size.next_power_of_two() as u64);
+        self.light_raw.clear();
+        self.light_raw.extend(
+            grouping
+                .order
+                .iter()
+                .map(|&i| LightRaw::from_light(&lights[i as usize])),
+        );
+        debug_assert!(self.light_raw.len() <= MAX_LIGHTS);
+        self.light_raw.truncate(MAX_LIGHTS);
+        draw_lists(draws, lights, grouping, &mut self.lists_raw, &mut self.list_raw);
+        self.lists_fit = self.list_raw.len() <= MAX_LIST;
+        self.n_groups = grouping.groups.len() as u32;
+        self.draw_raw.clear();
+        self.draw_raw
+            .extend(self.lists_raw.iter().map(|&[offset, count]| [offset, count, 0, 0]));
+        queue.write_buffer(&self.draws, 0, bytemuck::cast_slice(&self.draw_raw));
+        if !self.light_raw.is_empty() {
+            queue.write_buffer(&self.lights, 0, bytemuck::cast_slice(&self.light_raw));
         }
-        self.window_bytes.clear();
-        self.window_bytes.resize(size, 0);
-        for (i, w) in self.window_raw.iter().enumerate() {
-            self.window_bytes[i * stride..i * stride + std::mem::size_of::<WindowRaw>()]
-                .copy_from_slice(bytemuck::bytes_of(w));
-        }
-        if size > 0 {
-            queue.write_buffer(&self.windows, 0, &self.window_bytes);
+        if self.lists_fit && !self.list_raw.is_empty() {
+            queue.write_buffer(&self.list, 0, bytemuck::cast_slice(&self.list_raw));
         }
     }
 
-    /// Windows (lighting draws) of the current set.
-    pub fn windows(&self) -> u32 {
-        self.n_windows
+    /// Mean over the draws of the fraction of groups in their lists (1 = nothing culled), weighted
+    /// by the draws' index counts.
+    pub fn mean_list_fraction(&self, draws: &[DrawRange]) -> f32 {
+        let Some(all) = self.lists_raw.last() else {
+            return 1.0;
+        };
+        if all[1] == 0 {
+            return 1.0;
+        }
+        let total: u32 = draws.iter().map(|d| d.range.len() as u32).sum();
+        let kept: f32 = draws
+            .iter()
+            .zip(&self.lists_raw)
+            .map(|(d, l)| d.range.len() as f32 * l[1] as f32 / all[1] as f32)
+            .sum();
+        kept / total.max(1) as f32
+    }
+
+    /// Uploads each group's shadow layer and matrix; call when either changes.
+    pub fn upload_groups(&mut self, queue: &wgpu::Queue, groups: &[Group], shadows: &[GroupShadow]) {
+        self.group_raw.clear();
+        self.group_raw
+            .extend(groups.iter().zip(shadows).map(|(g, s)| GroupRaw {
+                rows: [0, 1, 2].map(|r| s.view_proj.row(r).to_array()),
+                info: [s.layer, g.first, g.count, 0],
+            }));
+        self.group_raw.truncate(MAX_LIGHTS);
+        if !self.group_raw.is_empty() {
+            queue.write_buffer(&self.groups, 0, bytemuck::cast_slice(&self.group_raw));
+        }
     }
 
     /// Writes the per-frame uniforms.
@@ -575,7 +549,12 @@ impl ShadingPass {
                 p.normal_offset * texel_world,
                 1.0 / p.shadow_size as f32,
             ],
-            flags: [0, p.glossy_threshold.is_some() as u32, p.pcf_taps, 0],
+            flags: [
+                (p.cull && self.lists_fit) as u32,
+                p.glossy_threshold.is_some() as u32,
+                p.pcf_taps,
+                self.n_groups,
+            ],
         };
         queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&raw));
     }
@@ -620,7 +599,10 @@ impl ShadingPass {
             pass.set_bind_group(0, &self.camera_bind_group, &[]);
             pass.set_vertex_buffer(0, scene.vertices.slice(..));
             pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
-            pass.draw_indexed(scene.all.clone(), 0, 0..1);
+            // One draw per normal bucket; the instance index tells the pixel its bucket.
+            for (i, d) in scene.draws.iter().enumerate() {
+                pass.draw_indexed(d.range.clone(), 0, i as u32..i as u32 + 1);
+            }
         }
         if self.bound_generation != shadow_generation {
             self.light_bind_group = None;
@@ -643,14 +625,18 @@ impl ShadingPass {
                 layout: &self.light_layout,
                 entries: &[
                     buffer(0, &self.globals),
-                    view(1, shadow_view),
+                    buffer(1, &self.lights),
+                    buffer(2, &self.groups),
+                    buffer(3, &self.list),
+                    buffer(4, &self.draws),
+                    view(5, shadow_view),
                     wgpu::BindGroupEntry {
-                        binding: 2,
+                        binding: 6,
                         resource: wgpu::BindingResource::Sampler(&self.sampler),
                     },
-                    view(3, &self.targets.gbuffer[0]),
-                    view(4, &self.targets.gbuffer[1]),
-                    view(5, &self.targets.gbuffer[2]),
+                    view(7, &self.targets.gbuffer[0]),
+                    view(8, &self.targets.gbuffer[1]),
+                    view(9, &self.targets.gbuffer[2]),
                 ],
             })
         });
@@ -673,107 +659,66 @@ impl ShadingPass {
         });
         pass.set_pipeline(&self.light_pipeline);
         pass.set_bind_group(0, &*bind_group, &[]);
-        for w in 0..self.n_windows {
-            let offset = (w as u64 * self.window_stride) as u32;
-            pass.set_bind_group(1, &self.window_bind_group, &[offset]);
-            pass.draw(0..3, 0..1);
-        }
+        pass.draw(0..3, 0..1);
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::cluster::Clusterer;
-    use glam::Mat4;
 
-    fn light(id: u32, d: Vec3, e: f32) -> Light {
-        Light {
+    #[test]
+    fn octahedral_round_trip() {
+        for k in 0..500 {
+            // Fibonacci sphere directions.
+            let y = 1.0 - 2.0 * (k as f32 + 0.5) / 500.0;
+            let phi = k as f32 * 2.399_963;
+            let r = (1.0 - y * y).sqrt();
+            let d = Vec3::new(r * phi.cos(), y, r * phi.sin());
+            let uv = octahedral_encode(d);
+            let back = octahedral_decode(uv);
+            assert!(d.dot(back) > 0.99999, "{d} -> {uv} -> {back}");
+        }
+    }
+
+    #[test]
+    fn a_light_below_a_draws_cone_is_culled_and_one_above_is_kept() {
+        let draws = [DrawRange {
+            range: 0..3,
+            axis: Vec3::Y,
+            sin_alpha: 10f32.to_radians().sin(),
+        }];
+        let light = |id, d: Vec3| Light {
             id,
             to_light: d.normalize().to_array(),
-            irradiance: [e; 3],
+            irradiance: [1.0; 3],
             solid_angle: 0.1,
-        }
-    }
-
-    fn windows(lights: &[Light], delta_deg: f32, cull: bool) -> Vec<WindowRaw> {
+        };
+        // 5° below the horizon: reaches normals tilted 10° toward it. 20° below: cannot.
+        let lights = [
+            light(0, Vec3::new(0.0, -(20f32.to_radians().tan()), 1.0)),
+            light(1, Vec3::new(0.0, -(5f32.to_radians().tan()), 1.0)),
+            light(2, Vec3::new(0.2, 1.0, 0.0)),
+        ];
+        let mut c = super::super::cluster::Clusterer::new(0.0);
         let mut g = Grouping::default();
-        Clusterer::new(delta_deg).group(lights, &mut g);
-        let shadows: Vec<GroupShadow> = (0..g.groups.len())
-            .map(|i| GroupShadow {
-                layer: i as u32,
-                view_proj: Mat4::IDENTITY,
-            })
-            .collect();
-        let mut out = Vec::new();
-        build_windows(lights, &g, &shadows, cull, &mut Vec::new(), &mut out);
-        out
+        c.group(&lights, &mut g);
+        let (mut lists, mut list) = (Vec::new(), Vec::new());
+        draw_lists(&draws, &lights, &g, &mut lists, &mut list);
+        let [off, n] = lists[0];
+        assert_eq!(&list[off as usize..(off + n) as usize], &[1, 2]);
+        assert_eq!(lists.last().unwrap()[1], 3);
     }
 
     #[test]
-    fn every_light_lands_in_one_slot_and_groups_end_flagged() {
-        // 20 lights around the sky plus a tight cluster of 5 around a sun.
-        let mut lights: Vec<Light> = (0..20)
-            .map(|k| {
-                let phi = k as f32 * 2.399_963;
-                let y = 1.0 - 2.0 * (k as f32 + 0.5) / 20.0;
-                let r = (1.0 - y * y).sqrt();
-                light(k, Vec3::new(r * phi.cos(), y, r * phi.sin()), 1.0)
-            })
-            .collect();
-        for k in 0..5 {
-            lights.push(light(20 + k, Vec3::new(0.01 * k as f32, 0.2, -1.0), 50.0));
+    fn bins_cover_the_grid() {
+        let mut seen = vec![false; (BIN_SIDE * BIN_SIDE) as usize];
+        for k in 0..20000 {
+            let y = 1.0 - 2.0 * (k as f32 + 0.5) / 20000.0;
+            let phi = k as f32 * 2.399_963;
+            let r = (1.0 - y * y).sqrt();
+            seen[bin_of(Vec3::new(r * phi.cos(), y, r * phi.sin()), BIN_SIDE) as usize] = true;
         }
-        let w = windows(&lights, 3.0, true);
-        let used: Vec<&LightRaw> = w.iter().flat_map(|w| w.lights.iter()).filter(|l| l.dir[3] < 1.5).collect();
-        assert_eq!(used.len(), lights.len());
-        let total: f32 = used.iter().map(|l| l.irradiance[0]).sum();
-        assert_eq!(total, 20.0 + 250.0, "energy is neither lost nor doubled");
-        // The sun's five lights share one layer, and a flush ends each run of a layer.
-        let sun_layer = used.iter().find(|l| l.irradiance[0] == 50.0).unwrap().irradiance[3];
-        assert_eq!(used.iter().filter(|l| l.irradiance[3] == sun_layer).count(), 5);
-        for w in &w {
-            let slots: Vec<&LightRaw> = w.lights.iter().filter(|l| l.dir[3] < 1.5).collect();
-            for pair in slots.windows(2) {
-                if pair[0].irradiance[3] != pair[1].irradiance[3] {
-                    assert_eq!(pair[0].dir[3], 1.0, "a group's last slot flushes");
-                }
-            }
-            assert_eq!(slots.last().unwrap().dir[3], 1.0, "a window's last slot flushes");
-        }
-    }
-
-    #[test]
-    fn cones_hold_their_lights_and_culling_off_passes_everything() {
-        let lights: Vec<Light> = (0..40)
-            .map(|k| {
-                let phi = k as f32 * 2.399_963;
-                let y = 1.0 - 2.0 * (k as f32 + 0.5) / 40.0;
-                let r = (1.0 - y * y).sqrt();
-                light(k, Vec3::new(r * phi.cos(), y, r * phi.sin()), 1.0)
-            })
-            .collect();
-        for w in windows(&lights, 0.0, true) {
-            let axis = Vec3::new(w.cone[0], w.cone[1], w.cone[2]);
-            for l in w.lights.iter().filter(|l| l.dir[3] < 1.5) {
-                let d = Vec3::new(l.dir[0], l.dir[1], l.dir[2]);
-                // A normal equal to a light's direction must pass its window's test.
-                assert!(d.dot(axis) > w.cone[3], "{d} outside {:?}", w.cone);
-            }
-        }
-        for w in windows(&lights, 0.0, false) {
-            assert_eq!(w.cone, NO_CULL);
-            assert!(w.lights.iter().all(|l| l.cone == NO_CULL));
-        }
-    }
-
-    #[test]
-    fn a_normal_facing_away_from_a_tight_cone_is_culled() {
-        let c = cone_of([Vec3::Y, Vec3::new(0.05, 1.0, 0.0).normalize()].into_iter());
-        let axis = Vec3::new(c[0], c[1], c[2]);
-        assert!(Vec3::Y.dot(axis) > c[3]);
-        assert!(Vec3::X.dot(axis) > c[3], "a normal at 90° still sees lights up to β above it");
-        assert!((-Vec3::Y).dot(axis) <= c[3]);
-        assert!(Vec3::new(1.0, -0.2, 0.0).normalize().dot(axis) <= c[3]);
+        assert!(seen.iter().all(|&s| s));
     }
 }

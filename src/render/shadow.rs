@@ -8,7 +8,7 @@
 //! its old matrix stay in use, which is exact for a steady light and off by at most ε for a moving one.
 
 use super::cluster::Group;
-use super::scene::{Scene, Vertex};
+use super::scene::{DrawRange, Scene, Vertex};
 use glam::{Mat4, Vec3};
 use std::collections::HashMap;
 
@@ -156,8 +156,12 @@ impl ShadowMaps {
                     attributes: &wgpu::vertex_attr_array![0 => Float32x3],
                 })],
             },
-            // Both faces: the boxes and a scanned mesh need not be closed or consistently wound.
-            primitive: wgpu::PrimitiveState::default(),
+            // The casters are closed: their faces toward the light hold the nearest depth, so the
+            // back faces can be culled (half the triangle setup, the bulk of a shadow pass here).
+            primitive: wgpu::PrimitiveState {
+                cull_mode: Some(wgpu::Face::Back),
+                ..Default::default()
+            },
             depth_stencil: Some(wgpu::DepthStencilState {
                 format: SHADOW_FORMAT,
                 depth_write_enabled: Some(true),
@@ -434,17 +438,21 @@ impl ShadowMaps {
 /// The scene's vertex and index buffers on the device.
 pub struct SceneBuffers {
     pub vertices: wgpu::Buffer,
-    /// Casters first.
+    /// Indices bucketed by normal bin ([`Scene::bucketed`]), casters first.
     pub indices: wgpu::Buffer,
     /// Index range of the shadow casters, and of everything.
     pub casters: std::ops::Range<u32>,
     pub all: std::ops::Range<u32>,
+    /// The draws of the shading pass, each with its normal cone.
+    pub draws: Vec<DrawRange>,
 }
 
 impl SceneBuffers {
     pub fn new(device: &wgpu::Device, scene: &Scene) -> SceneBuffers {
         use wgpu::util::DeviceExt;
         let (casters, all) = scene.index_ranges();
+        let (indices, draws) = scene.bucketed(super::shading::BIN_SIDE);
+        debug_assert_eq!(indices.len(), scene.indices.len());
         SceneBuffers {
             vertices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("scene vertices"),
@@ -453,11 +461,12 @@ impl SceneBuffers {
             }),
             indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("scene indices"),
-                contents: bytemuck::cast_slice(&scene.indices),
+                contents: bytemuck::cast_slice(&indices),
                 usage: wgpu::BufferUsages::INDEX,
             }),
             casters,
             all,
+            draws,
         }
     }
 }
