@@ -22,6 +22,10 @@ struct Globals {
     // x: 1 = lights culled per draw; y: 1 = glossy refinement; z: PCF taps (1 or 4; 0 = no shadows);
     // w: number of groups.
     flags: vec4<u32>,
+    // The shadow maps' fit: xyz = centre of the casters' bounding sphere, w = its radius r.
+    fit_sphere: vec4<f32>,
+    // x: distance from the centre to the farthest point of the scene.
+    fit_reach: vec4<f32>,
 };
 
 struct Light {
@@ -32,12 +36,11 @@ struct Light {
 };
 
 struct Group {
-    // World → shadow clip of the map this group's lights share: its first three rows (the map is
-    // orthographic, so the fourth row is 0 0 0 1).
-    rows: array<vec4<f32>, 3>,
     // x: layer in t_shadow, or 0xffffffff for no shadow map (lit); members are
-    // u_lights.items[y .. y + z].
+    // u_lights.items[y .. y + z]; w: unused.
     info: vec4<u32>,
+    // xyz: the direction the group's shadow map was drawn from (see shadow_clip).
+    axis: vec4<f32>,
 };
 
 // Uniform rather than storage buffers: lavapipe (Mesa 22.3) loads a storage buffer one SIMD lane at
@@ -67,16 +70,26 @@ fn vs_light(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
     return vec4<f32>(xy, 0.0, 1.0);
 }
 
-// Fraction of group gi's shadow map that sees `world` lit (PCF).
-fn visibility(gi: u32, world: vec3<f32>, n: vec3<f32>) -> f32 {
-    let layer = u_groups.items[gi].info.x;
+// World → shadow clip of the map drawn along `to_light`: orthographic, fitted to the casters'
+// sphere. The same function is in shadow.wgsl, and ShadowFit::project in src/render/shadow.rs
+// derives it; all three must agree. (Computing it here instead of reading a matrix saves loads,
+// which cost more than arithmetic on lavapipe.)
+fn shadow_clip(to_light: vec3<f32>, p: vec3<f32>) -> vec3<f32> {
+    let up = select(vec3<f32>(0.0, 1.0, 0.0), vec3<f32>(0.0, 0.0, 1.0), abs(to_light.y) > 0.99);
+    let x_axis = normalize(cross(up, to_light));
+    let y_axis = cross(to_light, x_axis);
+    let d = p - u_globals.fit_sphere.xyz;
+    let r = u_globals.fit_sphere.w;
+    return vec3<f32>(dot(x_axis, d) / r, dot(y_axis, d) / r, (r - dot(to_light, d)) / (r + u_globals.fit_reach.x));
+}
+
+// Fraction of the group's shadow map (layer, drawn from `axis`) that sees `world` lit (PCF).
+fn visibility(layer: u32, axis: vec3<f32>, world: vec3<f32>, n: vec3<f32>) -> f32 {
     if layer == 0xffffffffu || u_globals.flags.z == 0u {
         return 1.0;
     }
     // Offset along the normal so a surface does not shadow itself (shadow acne).
-    let p = vec4<f32>(world + n * u_globals.params.z, 1.0);
-    let rows = u_groups.items[gi].rows;
-    let clip = vec3<f32>(dot(rows[0], p), dot(rows[1], p), dot(rows[2], p));
+    let clip = shadow_clip(axis, world + n * u_globals.params.z);
     // Compensate for the Y-flip difference between NDC and texture coordinates.
     let uv = clip.xy * vec2<f32>(0.5, -0.5) + vec2<f32>(0.5);
     if any(uv < vec2<f32>(0.0)) || any(uv > vec2<f32>(1.0)) {
@@ -145,7 +158,7 @@ fn fs_light(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
         }
         // Only lights that reach the surface pay for a shadow lookup.
         if any(sum > vec3<f32>(0.0)) {
-            radiance += sum * visibility(gi, world, n);
+            radiance += sum * visibility(info.x, u_groups.items[gi].axis.xyz, world, n);
         }
     }
     return vec4<f32>(radiance * u_globals.params.x, 1.0);

@@ -259,6 +259,7 @@ impl Renderer {
             &self.queue,
             camera,
             &params,
+            &self.shadows.fit,
             self.shadows.fit.texel_world(self.shadows.size),
         );
         self.shading.draw(

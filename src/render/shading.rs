@@ -21,7 +21,7 @@
 
 use super::cluster::{Group, Grouping};
 use super::scene::{Camera, DrawRange, Vertex};
-use super::shadow::{GroupShadow, SceneBuffers};
+use super::shadow::{GroupShadow, SceneBuffers, ShadowFit};
 use crate::lights::Light;
 use glam::{Vec2, Vec3};
 
@@ -47,6 +47,7 @@ struct GlobalsRaw {
     camera_pos: [f32; 4],
     params: [f32; 4],
     flags: [u32; 4],
+    fit: [[f32; 4]; 2],
 }
 
 /// `Light` in light.wgsl.
@@ -72,10 +73,10 @@ impl LightRaw {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 struct GroupRaw {
-    /// The first three rows of the world → shadow-clip matrix (orthographic: the fourth is 0 0 0 1).
-    rows: [[f32; 4]; 3],
     /// layer, first, count, unused.
     info: [u32; 4],
+    /// The direction the group's shadow map was drawn from.
+    axis: [f32; 4],
 }
 
 /// Lights (and groups) the shading pass holds: the uniform arrays in light.wgsl are this long.
@@ -527,8 +528,8 @@ impl ShadingPass {
         self.group_raw.clear();
         self.group_raw
             .extend(groups.iter().zip(shadows).map(|(g, s)| GroupRaw {
-                rows: [0, 1, 2].map(|r| s.view_proj.row(r).to_array()),
                 info: [s.layer, g.first, g.count, 0],
+                axis: s.axis.extend(0.0).to_array(),
             }));
         self.group_raw.truncate(MAX_LIGHTS);
         if !self.group_raw.is_empty() {
@@ -537,7 +538,14 @@ impl ShadingPass {
     }
 
     /// Writes the per-frame uniforms.
-    pub fn upload_globals(&self, queue: &wgpu::Queue, camera: &Camera, p: &ShadingParams, texel_world: f32) {
+    pub fn upload_globals(
+        &self,
+        queue: &wgpu::Queue,
+        camera: &Camera,
+        p: &ShadingParams,
+        fit: &ShadowFit,
+        texel_world: f32,
+    ) {
         let (w, h) = self.targets.size;
         let view_proj = camera.view_proj(w as f32 / h as f32);
         queue.write_buffer(&self.camera, 0, bytemuck::cast_slice(&view_proj.to_cols_array()));
@@ -555,6 +563,7 @@ impl ShadingPass {
                 p.pcf_taps,
                 self.n_groups,
             ],
+            fit: fit.to_gpu(),
         };
         queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&raw));
     }

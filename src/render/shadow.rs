@@ -9,7 +9,7 @@
 
 use super::cluster::Group;
 use super::scene::{DrawRange, Scene, Vertex};
-use glam::{Mat4, Vec3};
+use glam::Vec3;
 use std::collections::HashMap;
 
 /// Depth format of the shadow maps.
@@ -19,20 +19,20 @@ pub const NO_LAYER: u32 = u32::MAX;
 /// Smallest array allocated (layers); it grows by powers of two as groups appear.
 const MIN_LAYERS: u32 = 8;
 
-/// Where a group's shadow comes from this frame.
+/// Where a group's shadow comes from this frame: a layer, and the direction it was drawn from (the
+/// projection follows from it and the [`ShadowFit`], in the shaders' `shadow_clip`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GroupShadow {
     pub layer: u32,
-    pub view_proj: Mat4,
+    pub axis: Vec3,
 }
 
 /// What a layer of the array holds.
 #[derive(Clone, Copy, Debug)]
 struct Layer {
     key: u32,
-    /// The axis the map was drawn from, and the matrix it was drawn with.
+    /// The axis the map was drawn from.
     drawn_axis: Vec3,
-    view_proj: Mat4,
     /// Last frame that used it (layers unused this frame may be given to new groups).
     used: u64,
 }
@@ -68,17 +68,30 @@ impl ShadowFit {
         }
     }
 
-    /// World → clip (wgpu NDC, z in [0, 1]) of an orthographic view along `-to_light`, fitted to the
-    /// casters' sphere across and from the sphere's light-side edge to the scene's far edge in depth.
-    /// The sphere does not change with the direction, so a map's texel size is the same for all lights.
-    pub fn view_proj(&self, to_light: Vec3) -> Mat4 {
-        use glam::camera::rh::{proj::directx::orthographic, view::look_at_mat4};
-        let r = self.radius;
-        let eye = self.centre + to_light * (2.0 * r);
-        // Any up vector not parallel to the view direction will do.
+    /// World → shadow clip (wgpu NDC, z in [0, 1]) of an orthographic view along `-to_light`, fitted
+    /// to the casters' sphere across, and in depth from the sphere's light-side edge to `reach`
+    /// beyond its centre. The sphere does not change with the direction, so a map's texel size is
+    /// the same for all lights. `shadow_clip` in shaders/shadow.wgsl and shaders/light.wgsl computes
+    /// the same; this copy is for tests.
+    ///
+    /// With d = p − centre, image axes x̂ = normalize(up × a), ŷ = a × x̂ (up = +Y, or +Z for a light
+    /// within 8° of the zenith or nadir): x = x̂·d / r, y = ŷ·d / r, depth = (r − a·d) / (r + reach).
+    pub fn project(&self, to_light: Vec3, p: Vec3) -> Vec3 {
         let up = if to_light.y.abs() > 0.99 { Vec3::Z } else { Vec3::Y };
-        let view = look_at_mat4(eye, self.centre, up);
-        orthographic(-r, r, -r, r, r, 2.0 * r + self.reach) * view
+        let x_axis = up.cross(to_light).normalize();
+        let y_axis = to_light.cross(x_axis);
+        let d = p - self.centre;
+        let r = self.radius;
+        Vec3::new(
+            x_axis.dot(d) / r,
+            y_axis.dot(d) / r,
+            (r - to_light.dot(d)) / (r + self.reach),
+        )
+    }
+
+    /// The fit as the shaders read it: (centre, radius), (reach, 0, 0, 0).
+    pub fn to_gpu(&self) -> [[f32; 4]; 2] {
+        [self.centre.extend(self.radius).to_array(), [self.reach, 0.0, 0.0, 0.0]]
     }
 
     /// One shadow texel, in world units across.
@@ -105,8 +118,10 @@ pub struct ShadowMaps {
     pub array_view: wgpu::TextureView,
     /// One view per layer, as depth attachment.
     layer_views: Vec<wgpu::TextureView>,
-    /// One matrix per layer, read by `vs_shadow`.
+    /// One direction per layer (xyz), read by `vs_shadow`.
     views_buf: wgpu::Buffer,
+    /// The fit, read by `vs_shadow`.
+    fit_buf: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     pub fit: ShadowFit,
     layers: Vec<Option<Layer>>,
@@ -127,16 +142,28 @@ impl ShadowMaps {
         });
         let bind_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("shadow"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::VERTEX,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Storage { read_only: true },
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::VERTEX,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
                 },
-                count: None,
-            }],
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::VERTEX,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: wgpu::BufferSize::new(32),
+                    },
+                    count: None,
+                },
+            ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shadow"),
@@ -180,8 +207,16 @@ impl ShadowMaps {
         });
         let max_layers = gpu.max_layers;
         let pad_for_gl = gpu.is_gl();
+        let fit_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("shadow fit"),
+            size: 32,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        gpu.queue
+            .write_buffer(&fit_buf, 0, bytemuck::cast_slice(&fit.to_gpu()));
         let (texture, array_view, layer_views, views_buf, bind_group) =
-            Self::allocate(&device, &bind_group_layout, size, MIN_LAYERS, pad_for_gl);
+            Self::allocate(&device, &bind_group_layout, &fit_buf, size, MIN_LAYERS, pad_for_gl);
         ShadowMaps {
             device,
             pipeline,
@@ -194,6 +229,7 @@ impl ShadowMaps {
             array_view,
             layer_views,
             views_buf,
+            fit_buf,
             bind_group,
             fit,
             layers: vec![None; MIN_LAYERS as usize],
@@ -208,6 +244,7 @@ impl ShadowMaps {
     fn allocate(
         device: &wgpu::Device,
         bgl: &wgpu::BindGroupLayout,
+        fit_buf: &wgpu::Buffer,
         size: u32,
         layers: u32,
         pad_for_gl: bool,
@@ -256,17 +293,23 @@ impl ShadowMaps {
             .collect();
         let views_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("shadow views"),
-            size: layers as u64 * 64,
+            size: layers as u64 * 16,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("shadow"),
             layout: bgl,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: views_buf.as_entire_binding(),
-            }],
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: views_buf.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: fit_buf.as_entire_binding(),
+                },
+            ],
         });
         (texture, array_view, layer_views, views_buf, bind_group)
     }
@@ -280,6 +323,7 @@ impl ShadowMaps {
         let (texture, array_view, layer_views, views_buf, bind_group) = Self::allocate(
             &self.device,
             &self.bind_group_layout,
+            &self.fit_buf,
             self.size,
             capacity,
             self.pad_for_gl,
@@ -345,12 +389,12 @@ impl ShadowMaps {
                     l.used = frame;
                     GroupShadow {
                         layer,
-                        view_proj: l.view_proj,
+                        axis: l.drawn_axis,
                     }
                 }
                 None => GroupShadow {
                     layer: NO_LAYER,
-                    view_proj: Mat4::IDENTITY,
+                    axis: g.axis,
                 },
             }
         }));
@@ -371,17 +415,15 @@ impl ShadowMaps {
             if let Some(old) = self.layers[cursor] {
                 self.layer_of_key.remove(&old.key);
             }
-            let view_proj = self.fit.view_proj(g.axis);
             self.layers[cursor] = Some(Layer {
                 key: g.key,
                 drawn_axis: g.axis,
-                view_proj,
                 used: frame,
             });
             self.layer_of_key.insert(g.key, cursor as u32);
             *s = GroupShadow {
                 layer: cursor as u32,
-                view_proj,
+                axis: g.axis,
             };
             self.redraw.push(cursor as u32);
         }
@@ -397,18 +439,17 @@ impl ShadowMaps {
             };
             if stale {
                 l.drawn_axis = g.axis;
-                l.view_proj = self.fit.view_proj(g.axis);
-                s.view_proj = l.view_proj;
+                s.axis = g.axis;
                 self.redraw.push(s.layer);
             }
         }
         // Record the depth passes.
         for &layer in &self.redraw {
-            let m = self.layers[layer as usize].expect("drawn layer").view_proj;
+            let axis = self.layers[layer as usize].expect("drawn layer").drawn_axis;
             queue.write_buffer(
                 &self.views_buf,
-                layer as u64 * 64,
-                bytemuck::bytes_of(&m.to_cols_array()),
+                layer as u64 * 16,
+                bytemuck::bytes_of(&axis.extend(0.0).to_array()),
             );
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("shadow pass"),
@@ -483,17 +524,21 @@ mod tests {
             reach: 4.0,
         };
         for d in [Vec3::Y, Vec3::new(0.3, 0.9, -0.2).normalize(), Vec3::new(1.0, -0.1, 0.0).normalize()] {
-            let m = fit.view_proj(d);
             for p in [fit.centre, fit.centre + 0.99 * Vec3::X, fit.centre - 0.99 * Vec3::Z, fit.centre + 0.99 * d] {
-                let c = m.project_point3(p);
+                let c = fit.project(d, p);
                 assert!(c.x.abs() <= 1.0 && c.y.abs() <= 1.0 && (0.0..=1.0).contains(&c.z), "{d} {p} → {c}");
             }
             // Toward the light is nearer (smaller depth).
-            let near = m.project_point3(fit.centre + 0.5 * d).z;
-            let far = m.project_point3(fit.centre - 0.5 * d).z;
+            let near = fit.project(d, fit.centre + 0.5 * d).z;
+            let far = fit.project(d, fit.centre - 0.5 * d).z;
             assert!(near < far);
             // A receiver `reach` away on the far side is still inside the depth range.
-            assert!(m.project_point3(fit.centre - 3.9 * d).z <= 1.0);
+            assert!(fit.project(d, fit.centre - 3.9 * d).z <= 1.0);
+            // Moving across the light direction moves across the map, not in depth.
+            let side = d.cross(Vec3::new(0.3, 0.1, 0.9)).normalize();
+            let a = fit.project(d, fit.centre);
+            let b = fit.project(d, fit.centre + 0.5 * side);
+            assert!((a.z - b.z).abs() < 1e-6 && (b.truncate() - a.truncate()).length() > 0.49);
         }
     }
 }
