@@ -31,7 +31,7 @@ struct GBuffer {
     @location(0) position: vec4<f32>,
     // xyz: unit normal; w: k_s.
     @location(1) normal: vec4<f32>,
-    // rgb: albedo ρ; a: shininess / 255.
+    // rgb: albedo ρ; a: shininess s.
     @location(2) material: vec4<f32>,
 };
 
@@ -53,6 +53,6 @@ fn fs_main(in: VertexOutput) -> GBuffer {
     var g: GBuffer;
     g.position = vec4<f32>(in.world, f32(in.draw));
     g.normal = vec4<f32>(normalize(in.normal), in.gloss.x);
-    g.material = vec4<f32>(in.albedo, in.gloss.y / 255.0);
+    g.material = vec4<f32>(in.albedo, in.gloss.y);
     return g;
 }

@@ -125,7 +125,7 @@ fn fs_light(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
     let r = reflect(-v, n);
     let diffuse = g_material.rgb / PI;
     let ks = g_normal.w;
-    let s = max(g_material.a * 255.0, 1.0);
+    let s = max(g_material.a, 1.0);
     let lobe_norm = ks * (s + 8.0) / (8.0 * PI);
     // The lobe (n·h)^s falls below t of its peak for n·h < t^(1/s), i.e. for lights farther than
     // 2·acos(t^(1/s)) from the reflected view direction: cos 2x = 2 cos² x − 1.

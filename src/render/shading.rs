@@ -29,7 +29,8 @@ use glam::{Vec2, Vec3};
 pub const GBUFFER_FORMATS: [wgpu::TextureFormat; 3] = [
     wgpu::TextureFormat::Rgba32Float,
     wgpu::TextureFormat::Rgba32Float,
-    wgpu::TextureFormat::Rgba8Unorm,
+    // 16-bit floats: an 8-bit albedo is off by up to 0.4 %, which the radiance tests see.
+    wgpu::TextureFormat::Rgba16Float,
 ];
 /// Draws the lighting pass knows lists for (`c_max_draws` in light.wgsl).
 pub const MAX_DRAWS: usize = 256;
