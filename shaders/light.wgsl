@@ -10,8 +10,10 @@ const PI: f32 = 3.14159265358979;
 const c_max_lights: u32 = 1024u;
 const c_max_list_vec4: u32 = 4096u;
 const c_max_draws: u32 = 256u;
-// Shadow lookups beyond this many taps are not offered (1 = one bilinear 2×2 PCF tap).
-const c_max_pcf_taps: u32 = 4u;
+// PCF taps per shadow lookup: 1 (one bilinear 2 × 2 tap), 4 (a 3 × 3 tent), or 0 (no shadows).
+// A pipeline constant, not a uniform: lavapipe runs both sides of every branch, so a uniform
+// choice between 1 and 4 taps would cost 5.
+override c_pcf_taps: u32 = 1u;
 
 struct Globals {
     camera_pos: vec4<f32>,
@@ -19,8 +21,7 @@ struct Globals {
     // light gets diffuse only); z: normal offset of shadow lookups (world units); w: one shadow texel
     // in texture coordinates.
     params: vec4<f32>,
-    // x: 1 = lights culled per draw; y: 1 = glossy refinement; z: PCF taps (1 or 4; 0 = no shadows);
-    // w: number of groups.
+    // x: 1 = lights culled per draw; y: 1 = glossy refinement; z: unused; w: number of groups.
     flags: vec4<u32>,
     // The shadow maps' fit: xyz = centre of the casters' bounding sphere, w = its radius r.
     fit_sphere: vec4<f32>,
@@ -85,7 +86,7 @@ fn shadow_clip(to_light: vec3<f32>, p: vec3<f32>) -> vec3<f32> {
 
 // Fraction of the group's shadow map (layer, drawn from `axis`) that sees `world` lit (PCF).
 fn visibility(layer: u32, axis: vec3<f32>, world: vec3<f32>, n: vec3<f32>) -> f32 {
-    if layer == 0xffffffffu || u_globals.flags.z == 0u {
+    if c_pcf_taps == 0u || layer == 0xffffffffu {
         return 1.0;
     }
     // Offset along the normal so a surface does not shadow itself (shadow acne).
@@ -97,17 +98,17 @@ fn visibility(layer: u32, axis: vec3<f32>, world: vec3<f32>, n: vec3<f32>) -> f3
     }
     // Beyond the far plane counts as "at the far plane": behind every caster, in front of the clear.
     let depth = clamp(clip.z, 0.0, 1.0);
-    if u_globals.flags.z <= 1u {
+    if c_pcf_taps == 1u {
         return textureSampleCompareLevel(t_shadow, s_shadow, uv, layer, depth);
     }
     // Four bilinear taps half a texel apart: a 3 × 3 tent over the texels.
     let h = 0.5 * u_globals.params.w;
     var sum = 0.0;
-    for (var i = 0u; i < c_max_pcf_taps; i++) {
+    for (var i = 0u; i < 4u; i++) {
         let o = vec2<f32>(select(-h, h, (i & 1u) != 0u), select(-h, h, (i & 2u) != 0u));
         sum += textureSampleCompareLevel(t_shadow, s_shadow, uv + o, layer, depth);
     }
-    return sum / f32(c_max_pcf_taps);
+    return sum / 4.0;
 }
 
 @fragment

@@ -134,7 +134,7 @@ impl Renderer {
         let device = gpu.device.clone();
         let scene_buffers = SceneBuffers::new(&device, scene);
         let shadows = ShadowMaps::new(gpu, ShadowFit::for_scene(scene), options.shadow_size);
-        let shading = ShadingPass::new(&device, size, scene_buffers.draws.len());
+        let shading = ShadingPass::new(&device, size, scene_buffers.draws.len(), options.pcf_taps);
         let tonemap = TonemapPass::new(&device, format, shading.hdr().1);
         let overlay = OverlayPass::new(&device, format);
         Renderer {
@@ -161,6 +161,16 @@ impl Renderer {
         if options.cluster_deg != self.options.cluster_deg {
             self.clusterer = Clusterer::new(options.cluster_deg);
             self.shadows.invalidate();
+        }
+        if options.pcf_taps != self.options.pcf_taps {
+            // The tap count is compiled into the lighting pipeline.
+            self.shading = ShadingPass::new(
+                &self.device,
+                self.shading.size(),
+                self.scene.draws.len(),
+                options.pcf_taps,
+            );
+            self.tonemap.resize(self.shading.hdr().1);
         }
         if options.shadow_size != self.options.shadow_size {
             self.shadows.set_size(options.shadow_size);
@@ -251,7 +261,6 @@ impl Renderer {
             exposure: self.exposure,
             cull: o.cull,
             glossy_threshold: o.glossy_threshold,
-            pcf_taps: o.pcf_taps,
             normal_offset: o.normal_offset_texels,
             shadow_size: self.shadows.size,
         };

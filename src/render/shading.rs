@@ -94,7 +94,6 @@ pub struct ShadingParams {
     /// Glossy refinement: lights whose lobe value at the pixel is below `glossy_threshold` of its
     /// peak get diffuse only; `None` evaluates the full BRDF for every light.
     pub glossy_threshold: Option<f32>,
-    pub pcf_taps: u32,
     /// Normal offset of shadow lookups, world units.
     pub normal_offset: f32,
     /// Side of a shadow map, texels.
@@ -264,7 +263,8 @@ pub struct ShadingPass {
 }
 
 impl ShadingPass {
-    pub fn new(device: &wgpu::Device, size: (u32, u32), draws: usize) -> ShadingPass {
+    /// `pcf_taps`: 0, 1 or 4, compiled into the lighting pipeline.
+    pub fn new(device: &wgpu::Device, size: (u32, u32), draws: usize, pcf_taps: u32) -> ShadingPass {
         assert!(draws < MAX_DRAWS, "{draws} draws; the lighting pass knows {MAX_DRAWS}");
         // The geometry pass.
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -412,7 +412,10 @@ impl ShadingPass {
             fragment: Some(wgpu::FragmentState {
                 module: &shader,
                 entry_point: Some("fs_light"),
-                compilation_options: Default::default(),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &[("c_pcf_taps", pcf_taps as f64)],
+                    ..Default::default()
+                },
                 targets: &[Some(HDR_FORMAT.into())],
             }),
             multiview_mask: None,
@@ -561,7 +564,7 @@ impl ShadingPass {
             flags: [
                 (p.cull && self.lists_fit) as u32,
                 p.glossy_threshold.is_some() as u32,
-                p.pcf_taps,
+                0,
                 self.n_groups,
             ],
             fit: fit.to_gpu(),
