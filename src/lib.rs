@@ -8,6 +8,6 @@
 pub mod envmap;
 pub mod lights;
 pub mod lightset;
-pub mod sampling;
 #[cfg(feature = "render")]
 pub mod render;
+pub mod sampling;

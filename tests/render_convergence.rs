@@ -51,5 +51,8 @@ fn more_lights_converge_to_the_1024_light_render() {
         errors.push(e);
     }
     assert!(errors[0] > errors[1] && errors[1] > errors[2], "{errors:?}");
-    assert!(errors[2] < 0.1, "128 lights within 10 % RMS of 1 024: {errors:?}");
+    assert!(
+        errors[2] < 0.1,
+        "128 lights within 10 % RMS of 1 024: {errors:?}"
+    );
 }

@@ -6,16 +6,27 @@
 use std::process::Command;
 
 fn missing_backend() -> &'static str {
-    if cfg!(target_vendor = "apple") { "dx12" } else { "metal" }
+    if cfg!(target_vendor = "apple") {
+        "dx12"
+    } else {
+        "metal"
+    }
 }
 
 fn lightset_file() -> std::path::PathBuf {
     let out = Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["lights", "tests/data/overcast-plaza.exr", "-n", "4", "--no-sh"])
+        .args([
+            "lights",
+            "tests/data/overcast-plaza.exr",
+            "-n",
+            "4",
+            "--no-sh",
+        ])
         .output()
         .unwrap();
     assert!(out.status.success());
-    let path = std::env::temp_dir().join(format!("vemlight-no-adapter-{}.json", std::process::id()));
+    let path =
+        std::env::temp_dir().join(format!("vemlight-no-adapter-{}.json", std::process::id()));
     std::fs::write(&path, out.stdout).unwrap();
     path
 }
@@ -24,10 +35,17 @@ fn check(out: std::process::Output) {
     let stderr = String::from_utf8_lossy(&out.stderr);
     println!("exit {:?}, stderr:\n{stderr}", out.status.code());
     assert!(!out.status.success(), "must fail");
-    assert_ne!(out.status.code(), Some(101), "101 is Rust's panic exit code");
+    assert_ne!(
+        out.status.code(),
+        Some(101),
+        "101 is Rust's panic exit code"
+    );
     assert!(!stderr.contains("panicked"), "no panic: {stderr}");
     assert!(stderr.contains("no graphics adapter found"), "{stderr}");
-    assert!(stderr.contains("mesa-vulkan-drivers"), "says what to install: {stderr}");
+    assert!(
+        stderr.contains("mesa-vulkan-drivers"),
+        "says what to install: {stderr}"
+    );
 }
 
 #[test]

@@ -75,7 +75,10 @@ fn radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
             let c = at(x, y);
             for (dx, dy) in [(0, 1), (2, 1), (1, 0), (1, 2)] {
                 let v = at(x + dx - 1, y + dy - 1);
-                assert!((v - c).abs() <= TOLERANCE * c.max(1e-3), "{p}: neighbour {v} vs {c}");
+                assert!(
+                    (v - c).abs() <= TOLERANCE * c.max(1e-3),
+                    "{p}: neighbour {v} vs {c}"
+                );
             }
             c
         })
@@ -93,10 +96,21 @@ fn one_light_straight_above_leaves_the_shadow_black_and_the_open_at_rho_over_pi_
     let open = Vec3::new(1.5, 0.0, 1.5);
     let l = radiance_at(&[light(0, Vec3::Y, e)], &[under, open]);
     let expected_open = ALBEDO / PI * e;
-    println!("shadow {} open {} (expected 0 and {expected_open})", l[0], l[1]);
-    assert!(close(l[1], expected_open), "open ground {} vs ρ/π·E = {expected_open}", l[1]);
+    println!(
+        "shadow {} open {} (expected 0 and {expected_open})",
+        l[0], l[1]
+    );
+    assert!(
+        close(l[1], expected_open),
+        "open ground {} vs ρ/π·E = {expected_open}",
+        l[1]
+    );
     // Shadowed / lit = 0 / (ρ/π·E): no light, and no ambient term.
-    assert!(l[0] <= 1e-4 * expected_open, "shadow {} should be black", l[0]);
+    assert!(
+        l[0] <= 1e-4 * expected_open,
+        "shadow {} should be black",
+        l[0]
+    );
 }
 
 #[test]
@@ -108,7 +122,10 @@ fn a_second_light_at_60_degrees_gives_the_ratios_of_the_diffuse_formula() {
     let under = Vec3::new(0.0, 0.0, 0.0); // light 1 blocked
     let beside = Vec3::new(-1.9, 0.0, 0.0); // light 2 blocked
     let open = Vec3::new(1.5, 0.0, 1.5); // neither
-    let l = radiance_at(&[light(0, Vec3::Y, e1), light(1, l2, e2)], &[under, beside, open]);
+    let l = radiance_at(
+        &[light(0, Vec3::Y, e1), light(1, l2, e2)],
+        &[under, beside, open],
+    );
     let k = ALBEDO / PI;
     let (expect_under, expect_beside, expect_open) = (k * e2 * 0.5, k * e1, k * (e1 + e2 * 0.5));
     println!(

@@ -33,12 +33,21 @@ fn consecutive_frames_of_a_steady_scene_are_identical() {
         println!("{options:?}: {stats:?}");
         let n = frames.len();
         for (a, b) in [(n - 3, n - 2), (n - 2, n - 1)] {
-            let diff: Vec<usize> = (0..frames[a].len()).filter(|&i| frames[a][i] != frames[b][i]).collect();
+            let diff: Vec<usize> = (0..frames[a].len())
+                .filter(|&i| frames[a][i] != frames[b][i])
+                .collect();
             let first = diff.first().map(|i| (i / 4 % 320, i / 4 / 320));
-            assert!(diff.is_empty(), "frames {a} and {b}: {} bytes differ, first at pixel {first:?}", diff.len());
+            assert!(
+                diff.is_empty(),
+                "frames {a} and {b}: {} bytes differ, first at pixel {first:?}",
+                diff.len()
+            );
         }
         if options.reuse_deg.is_some() {
-            assert!(stats[1].maps_drawn == 0 && stats[2].maps_drawn == 0, "maps were reused");
+            assert!(
+                stats[1].maps_drawn == 0 && stats[2].maps_drawn == 0,
+                "maps were reused"
+            );
         }
     }
     // Naive and optimised: the same lights, one shadow map per cluster instead of per light, and
@@ -46,6 +55,9 @@ fn consecutive_frames_of_a_steady_scene_are_identical() {
     let (a, b) = (&frames[0], &frames[3]);
     let differing = a.iter().zip(b).filter(|(x, y)| x.abs_diff(**y) > 8).count();
     let fraction = differing as f64 / a.len() as f64;
-    println!("naive vs optimised: {:.2} % of channels differ by more than 8/255", 100.0 * fraction);
+    println!(
+        "naive vs optimised: {:.2} % of channels differ by more than 8/255",
+        100.0 * fraction
+    );
     assert!(fraction < 0.02, "{fraction}");
 }

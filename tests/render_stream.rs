@@ -10,7 +10,13 @@ use vemlight::render::source::{LightFeed, SUBPROTOCOL, Source};
 
 fn a_lightset(seq: u64) -> String {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["lights", "tests/data/overcast-plaza.exr", "-n", "4", "--no-sh"])
+        .args([
+            "lights",
+            "tests/data/overcast-plaza.exr",
+            "-n",
+            "4",
+            "--no-sh",
+        ])
         .output()
         .unwrap();
     let mut set: LightSet = serde_json::from_slice(&out.stdout).unwrap();
@@ -19,6 +25,8 @@ fn a_lightset(seq: u64) -> String {
 }
 
 #[test]
+// tungstenite's handshake callback returns its (large) HTTP error response by value.
+#[allow(clippy::result_large_err)]
 fn the_stream_client_reconnects_and_keeps_the_latest_set() {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let port = listener.local_addr().unwrap().port();
@@ -28,16 +36,20 @@ fn the_stream_client_reconnects_and_keeps_the_latest_set() {
         // Two connections: each gets one set, then the server hangs up.
         for msg in messages {
             let (tcp, _) = listener.accept().unwrap();
-            let mut ws = tungstenite::accept_hdr(tcp, |req: &tungstenite::handshake::server::Request, mut resp: tungstenite::handshake::server::Response| {
-                let asked = req
-                    .headers()
-                    .get("Sec-WebSocket-Protocol")
-                    .map(|v| v.to_str().unwrap().to_owned());
-                protocols.push(asked);
-                resp.headers_mut()
-                    .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
-                Ok(resp)
-            })
+            let mut ws = tungstenite::accept_hdr(
+                tcp,
+                |req: &tungstenite::handshake::server::Request,
+                 mut resp: tungstenite::handshake::server::Response| {
+                    let asked = req
+                        .headers()
+                        .get("Sec-WebSocket-Protocol")
+                        .map(|v| v.to_str().unwrap().to_owned());
+                    protocols.push(asked);
+                    resp.headers_mut()
+                        .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
+                    Ok(resp)
+                },
+            )
             .unwrap();
             ws.send(tungstenite::Message::text(msg)).unwrap();
             ws.close(None).unwrap();
@@ -57,7 +69,9 @@ fn the_stream_client_reconnects_and_keeps_the_latest_set() {
     assert_eq!(second.lights.len(), 4);
     let protocols = server.join().unwrap();
     assert_eq!(protocols, vec![Some(SUBPROTOCOL.to_owned()); 2]);
-    let LightFeed::Stream(client) = &feed else { unreachable!() };
+    let LightFeed::Stream(client) = &feed else {
+        unreachable!()
+    };
     assert_eq!(client.connections(), 2);
     drop(feed); // stops the thread promptly
 }

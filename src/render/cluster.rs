@@ -120,12 +120,12 @@ impl Clusterer {
             }
         }
         // Members now beyond δ_keep of their group's axis leave it (the axis is recomputed without them).
-        for i in 0..lights.len() {
+        for (i, l) in lights.iter().enumerate() {
             if let Some(s) = self.assigned[i]
-                && self.slots[s].axis().dot(dir(&lights[i])) < self.cos_keep
+                && self.slots[s].axis().dot(dir(l)) < self.cos_keep
             {
                 self.assigned[i] = None;
-                self.slots[s].sum -= weight(&lights[i]) * dir(&lights[i]);
+                self.slots[s].sum -= weight(l) * dir(l);
                 self.slots[s].members -= 1;
             }
         }
@@ -171,7 +171,7 @@ impl Clusterer {
         //    output is deterministic), and remember the assignment for the next frame.
         self.previous.clear();
         let mut group_of_slot: Vec<Option<usize>> = vec![None; self.slots.len()];
-        for i in 0..lights.len() {
+        for (i, l) in lights.iter().enumerate() {
             let s = self.assigned[i].expect("every light is assigned");
             if group_of_slot[s].is_none() {
                 group_of_slot[s] = Some(out.groups.len());
@@ -183,7 +183,7 @@ impl Clusterer {
                 });
             }
             out.groups[group_of_slot[s].unwrap()].count += 1;
-            self.previous.insert(lights[i].id, self.slots[s].key);
+            self.previous.insert(l.id, self.slots[s].key);
         }
         let mut first = 0;
         for g in &mut out.groups {
@@ -247,16 +247,34 @@ mod tests {
     fn hysteresis_keeps_a_light_that_drifts_between_delta_and_delta_keep() {
         let mut c = Clusterer::new(3.0);
         let mut g = Grouping::default();
-        c.group(&[light(0, 0.0, 30.0, 10.0), light(1, 2.0, 30.0, 1.0)], &mut g);
+        c.group(
+            &[light(0, 0.0, 30.0, 10.0), light(1, 2.0, 30.0, 1.0)],
+            &mut g,
+        );
         assert_eq!(g.groups.len(), 1);
         let key = g.groups[0].key;
         // Light 1 now 4° from light 0: beyond δ, within δ_keep = 4.5° of the (power-weighted) axis.
-        c.group(&[light(0, 0.0, 30.0, 10.0), light(1, 4.0 / 30f32.to_radians().cos(), 30.0, 1.0)], &mut g);
+        c.group(
+            &[
+                light(0, 0.0, 30.0, 10.0),
+                light(1, 4.0 / 30f32.to_radians().cos(), 30.0, 1.0),
+            ],
+            &mut g,
+        );
         assert_eq!(g.groups.len(), 1, "{g:?}");
-        assert_eq!(g.groups[0].key, key, "the group keeps its key (and its shadow map)");
+        assert_eq!(
+            g.groups[0].key, key,
+            "the group keeps its key (and its shadow map)"
+        );
         // A fresh clusterer puts them apart.
         let mut fresh = Clusterer::new(3.0);
-        fresh.group(&[light(0, 0.0, 30.0, 10.0), light(1, 4.0 / 30f32.to_radians().cos(), 30.0, 1.0)], &mut g);
+        fresh.group(
+            &[
+                light(0, 0.0, 30.0, 10.0),
+                light(1, 4.0 / 30f32.to_radians().cos(), 30.0, 1.0),
+            ],
+            &mut g,
+        );
         assert_eq!(g.groups.len(), 2);
     }
 
@@ -264,7 +282,10 @@ mod tests {
     fn clustering_off_gives_one_group_per_light_keyed_by_id() {
         let mut c = Clusterer::new(0.0);
         let mut g = Grouping::default();
-        c.group(&[light(7, 0.0, 30.0, 10.0), light(9, 0.5, 30.0, 1.0)], &mut g);
+        c.group(
+            &[light(7, 0.0, 30.0, 10.0), light(9, 0.5, 30.0, 1.0)],
+            &mut g,
+        );
         assert_eq!(g.groups.iter().map(|g| g.key).collect::<Vec<_>>(), [7, 9]);
     }
 }

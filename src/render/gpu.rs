@@ -65,7 +65,11 @@ pub fn parse_backends(s: &str) -> Result<Backends, String> {
             "gl" | "gles" | "opengl" => Backends::GL,
             "metal" | "mtl" => Backends::METAL,
             "dx12" | "d3d12" => Backends::DX12,
-            other => return Err(format!("unknown backend {other:?} (vulkan, gl, metal, dx12, all)")),
+            other => {
+                return Err(format!(
+                    "unknown backend {other:?} (vulkan, gl, metal, dx12, all)"
+                ));
+            }
         };
     }
     Ok(b)

@@ -190,7 +190,10 @@ impl Renderer {
         // The uniform arrays hold MAX_LIGHTS; the progressive order makes the prefix the right cut.
         self.lights.truncate(shading::MAX_LIGHTS);
         self.lights_dirty = true;
-        self.exposure = self.options.exposure.unwrap_or_else(|| auto_exposure(lights));
+        self.exposure = self
+            .options
+            .exposure
+            .unwrap_or_else(|| auto_exposure(lights));
     }
 
     pub fn lights(&self) -> &[Light] {
@@ -215,10 +218,17 @@ impl Renderer {
     }
 
     /// Renders one frame into `target` and submits it.
-    pub fn render(&mut self, target: &wgpu::TextureView, camera: &Camera, status: &Status) -> FrameStats {
+    pub fn render(
+        &mut self,
+        target: &wgpu::TextureView,
+        camera: &Camera,
+        status: &Status,
+    ) -> FrameStats {
         let mut encoder = self
             .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("frame"),
+            });
         let stats = self.encode(&mut encoder, target, camera, status);
         self.queue.submit([encoder.finish()]);
         stats
@@ -362,7 +372,8 @@ impl Renderer {
     fn read_texture(&self, texture: &wgpu::Texture, bytes_per_pixel: u32) -> Vec<u8> {
         let (w, h) = self.shading.size();
         let row = w * bytes_per_pixel;
-        let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let padded =
+            row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
         let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
             size: (padded * h) as u64,
@@ -371,7 +382,9 @@ impl Renderer {
         });
         let mut encoder = self
             .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("readback") });
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("readback"),
+            });
         encoder.copy_texture_to_buffer(
             texture.as_image_copy(),
             wgpu::TexelCopyBufferInfo {
@@ -390,7 +403,9 @@ impl Renderer {
         );
         self.queue.submit([encoder.finish()]);
         let slice = buffer.slice(..);
-        slice.map_async(wgpu::MapMode::Read, |r| r.expect("mapping the readback buffer"));
+        slice.map_async(wgpu::MapMode::Read, |r| {
+            r.expect("mapping the readback buffer")
+        });
         self.wait();
         let data = slice.get_mapped_range().expect("mapped");
         let mut out = Vec::with_capacity((row * h) as usize);

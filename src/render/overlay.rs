@@ -137,7 +137,13 @@ impl OverlayPass {
     }
 
     /// Builds and uploads this frame's quads.
-    pub fn prepare(&mut self, queue: &wgpu::Queue, size: (u32, u32), lights: &[Light], status: &Status) {
+    pub fn prepare(
+        &mut self,
+        queue: &wgpu::Queue,
+        size: (u32, u32),
+        lights: &[Light],
+        status: &Status,
+    ) {
         let (w, h) = (size.0 as f32, size.1 as f32);
         queue.write_buffer(&self.globals, 0, bytemuck::cast_slice(&[w, h, 0.0, 0.0]));
         self.staging.clear();
@@ -148,7 +154,9 @@ impl OverlayPass {
         self.push(c, radius, [0.0, 0.0, 0.0, 0.5], DISK);
         self.push(c, radius, [0.8, 0.8, 0.8, 0.6], RING);
         self.push(c, 0.5 * radius, [0.8, 0.8, 0.6, 0.6], RING); // the horizon
-        let lum = |l: &Light| 0.2126 * l.irradiance[0] + 0.7152 * l.irradiance[1] + 0.0722 * l.irradiance[2];
+        let lum = |l: &Light| {
+            0.2126 * l.irradiance[0] + 0.7152 * l.irradiance[1] + 0.0722 * l.irradiance[2]
+        };
         let max_lum = lights.iter().map(lum).fold(0.0f32, f32::max);
         for l in lights {
             if self.staging.len() + 400 >= MAX_INSTANCES {
@@ -157,20 +165,33 @@ impl OverlayPass {
             let [x, y, z] = l.to_light;
             let theta = y.clamp(-1.0, 1.0).acos();
             let horiz = (x * x + z * z).sqrt();
-            let (ux, uz) = if horiz > 1e-6 { (x / horiz, z / horiz) } else { (0.0, 0.0) };
+            let (ux, uz) = if horiz > 1e-6 {
+                (x / horiz, z / horiz)
+            } else {
+                (0.0, 0.0)
+            };
             let r = radius * theta / std::f32::consts::PI;
             // Area ∝ power: radius ∝ √power, from 1 to 5 pixels.
             let size = 1.0 + 4.0 * (lum(l) / max_lum.max(1e-30)).max(0.0).sqrt();
             let m = l.irradiance.iter().cloned().fold(1e-30f32, f32::max);
             let col = l.irradiance.map(|v| 0.35 + 0.65 * (v / m).max(0.0));
-            self.push([c[0] + ux * r, c[1] + uz * r], size, [col[0], col[1], col[2], 0.95], DISK);
+            self.push(
+                [c[0] + ux * r, c[1] + uz * r],
+                size,
+                [col[0], col[1], col[2], 0.95],
+                DISK,
+            );
         }
         // The status line under the disk.
         self.text.clear();
         if let Some(fps) = status.fps {
             let _ = write!(self.text, "{fps:.1} fps ");
         }
-        let _ = write!(self.text, "{} lights {} maps", status.lights, status.maps_drawn);
+        let _ = write!(
+            self.text,
+            "{} lights {} maps",
+            status.lights, status.maps_drawn
+        );
         if status.stale {
             self.text.push_str(" ..."); // the stream is down; these are the last lights received
         }
@@ -199,7 +220,10 @@ impl OverlayPass {
                 for col in 0..3 {
                     if bits & (0b100 >> col) != 0 && self.staging.len() < MAX_INSTANCES {
                         self.staging.push(Instance {
-                            centre: [x + (col as f32 + 0.5) * px, origin[1] + (row as f32 + 0.5) * px],
+                            centre: [
+                                x + (col as f32 + 0.5) * px,
+                                origin[1] + (row as f32 + 0.5) * px,
+                            ],
                             half_size: [0.5 * px, 0.5 * px],
                             color: [1.0, 1.0, 0.85, 0.95],
                             shape: RECT,

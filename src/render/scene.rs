@@ -132,11 +132,17 @@ impl Mesh {
         for model in models {
             let m = &model.mesh;
             let base = mesh.positions.len() as u32;
-            mesh.positions
-                .extend(m.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])));
+            mesh.positions.extend(
+                m.positions
+                    .chunks_exact(3)
+                    .map(|p| Vec3::new(p[0], p[1], p[2])),
+            );
             if m.normals.len() == m.positions.len() {
-                mesh.normals
-                    .extend(m.normals.chunks_exact(3).map(|n| Vec3::new(n[0], n[1], n[2])));
+                mesh.normals.extend(
+                    m.normals
+                        .chunks_exact(3)
+                        .map(|n| Vec3::new(n[0], n[1], n[2])),
+                );
             } else {
                 all_have_normals = false;
             }
@@ -188,7 +194,10 @@ pub fn smooth_normals(positions: &[Vec3], indices: &[u32]) -> Vec<Vec3> {
         }
     }
     // A vertex on no face (or only on degenerate ones) gets +Y rather than NaN.
-    normals.into_iter().map(|n| n.normalize_or(Vec3::Y)).collect()
+    normals
+        .into_iter()
+        .map(|n| n.normalize_or(Vec3::Y))
+        .collect()
 }
 
 /// Everything drawn: casters first, then receivers.
@@ -414,8 +423,8 @@ impl Camera {
         // 28° above the horizon, at 0.95 of the bounding radius: the ground fills the lower frame.
         let elevation = 28f32.to_radians();
         let dist = 0.95 * r;
-        let eye = target
-            + dist * Vec3::new(s * elevation.cos(), elevation.sin(), c * elevation.cos());
+        let eye =
+            target + dist * Vec3::new(s * elevation.cos(), elevation.sin(), c * elevation.cos());
         Camera {
             eye,
             target,
@@ -454,7 +463,11 @@ mod tests {
     #[test]
     fn placement_stands_the_mesh_on_the_ground() {
         let mesh = Mesh {
-            positions: vec![Vec3::new(2.0, 5.0, 1.0), Vec3::new(4.0, 9.0, 3.0), Vec3::new(3.0, 7.0, 5.0)],
+            positions: vec![
+                Vec3::new(2.0, 5.0, 1.0),
+                Vec3::new(4.0, 9.0, 3.0),
+                Vec3::new(3.0, 7.0, 5.0),
+            ],
             normals: vec![Vec3::Y; 3],
             indices: vec![0, 1, 2],
         };

@@ -212,8 +212,12 @@ impl Targets {
             .collect::<Vec<_>>()
             .try_into()
             .expect("three targets");
-        let depth = make("camera depth", DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT)
-            .create_view(&Default::default());
+        let depth = make(
+            "camera depth",
+            DEPTH_FORMAT,
+            wgpu::TextureUsages::RENDER_ATTACHMENT,
+        )
+        .create_view(&Default::default());
         let hdr = make(
             "hdr",
             HDR_FORMAT,
@@ -264,8 +268,16 @@ pub struct ShadingPass {
 
 impl ShadingPass {
     /// `pcf_taps`: 0, 1 or 4, compiled into the lighting pipeline.
-    pub fn new(device: &wgpu::Device, size: (u32, u32), draws: usize, pcf_taps: u32) -> ShadingPass {
-        assert!(draws < MAX_DRAWS, "{draws} draws; the lighting pass knows {MAX_DRAWS}");
+    pub fn new(
+        device: &wgpu::Device,
+        size: (u32, u32),
+        draws: usize,
+        pcf_taps: u32,
+    ) -> ShadingPass {
+        assert!(
+            draws < MAX_DRAWS,
+            "{draws} draws; the lighting pass knows {MAX_DRAWS}"
+        );
         // The geometry pass.
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("gbuffer.wgsl"),
@@ -441,8 +453,16 @@ impl ShadingPass {
             light_pipeline,
             light_layout,
             globals: uniform_buffer(device, "light globals", std::mem::size_of::<GlobalsRaw>()),
-            lights: uniform_buffer(device, "lights", MAX_LIGHTS * std::mem::size_of::<LightRaw>()),
-            groups: uniform_buffer(device, "groups", MAX_LIGHTS * std::mem::size_of::<GroupRaw>()),
+            lights: uniform_buffer(
+                device,
+                "lights",
+                MAX_LIGHTS * std::mem::size_of::<LightRaw>(),
+            ),
+            groups: uniform_buffer(
+                device,
+                "groups",
+                MAX_LIGHTS * std::mem::size_of::<GroupRaw>(),
+            ),
             list: uniform_buffer(device, "draw light lists", MAX_LIST * 4),
             draws: uniform_buffer(device, "draws", MAX_DRAWS * 16),
             lists_fit: true,
@@ -494,12 +514,21 @@ impl ShadingPass {
         );
         debug_assert!(self.light_raw.len() <= MAX_LIGHTS);
         self.light_raw.truncate(MAX_LIGHTS);
-        draw_lists(draws, lights, grouping, &mut self.lists_raw, &mut self.list_raw);
+        draw_lists(
+            draws,
+            lights,
+            grouping,
+            &mut self.lists_raw,
+            &mut self.list_raw,
+        );
         self.lists_fit = self.list_raw.len() <= MAX_LIST;
         self.n_groups = grouping.groups.len() as u32;
         self.draw_raw.clear();
-        self.draw_raw
-            .extend(self.lists_raw.iter().map(|&[offset, count]| [offset, count, 0, 0]));
+        self.draw_raw.extend(
+            self.lists_raw
+                .iter()
+                .map(|&[offset, count]| [offset, count, 0, 0]),
+        );
         queue.write_buffer(&self.draws, 0, bytemuck::cast_slice(&self.draw_raw));
         if !self.light_raw.is_empty() {
             queue.write_buffer(&self.lights, 0, bytemuck::cast_slice(&self.light_raw));
@@ -528,7 +557,12 @@ impl ShadingPass {
     }
 
     /// Uploads each group's shadow layer and matrix; call when either changes.
-    pub fn upload_groups(&mut self, queue: &wgpu::Queue, groups: &[Group], shadows: &[GroupShadow]) {
+    pub fn upload_groups(
+        &mut self,
+        queue: &wgpu::Queue,
+        groups: &[Group],
+        shadows: &[GroupShadow],
+    ) {
         self.group_raw.clear();
         self.group_raw
             .extend(groups.iter().zip(shadows).map(|(g, s)| GroupRaw {
@@ -552,7 +586,11 @@ impl ShadingPass {
     ) {
         let (w, h) = self.targets.size;
         let view_proj = camera.view_proj(w as f32 / h as f32);
-        queue.write_buffer(&self.camera, 0, bytemuck::cast_slice(&view_proj.to_cols_array()));
+        queue.write_buffer(
+            &self.camera,
+            0,
+            bytemuck::cast_slice(&view_proj.to_cols_array()),
+        );
         let raw = GlobalsRaw {
             camera_pos: camera.eye.extend(1.0).to_array(),
             params: [

@@ -58,7 +58,11 @@ impl ShadowFit {
         let corners = [scene.bounds.min, scene.bounds.max];
         let mut reach = b.radius();
         for i in 0..8 {
-            let c = Vec3::new(corners[i & 1].x, corners[(i >> 1) & 1].y, corners[(i >> 2) & 1].z);
+            let c = Vec3::new(
+                corners[i & 1].x,
+                corners[(i >> 1) & 1].y,
+                corners[(i >> 2) & 1].z,
+            );
             reach = reach.max(c.distance(centre));
         }
         ShadowFit {
@@ -77,7 +81,11 @@ impl ShadowFit {
     /// With d = p − centre, image axes x̂ = normalize(up × a), ŷ = a × x̂ (up = +Y, or +Z for a light
     /// within 8° of the zenith or nadir): x = x̂·d / r, y = ŷ·d / r, depth = (r − a·d) / (r + reach).
     pub fn project(&self, to_light: Vec3, p: Vec3) -> Vec3 {
-        let up = if to_light.y.abs() > 0.99 { Vec3::Z } else { Vec3::Y };
+        let up = if to_light.y.abs() > 0.99 {
+            Vec3::Z
+        } else {
+            Vec3::Y
+        };
         let x_axis = up.cross(to_light).normalize();
         let y_axis = to_light.cross(x_axis);
         let d = p - self.centre;
@@ -91,7 +99,10 @@ impl ShadowFit {
 
     /// The fit as the shaders read it: (centre, radius), (reach, 0, 0, 0).
     pub fn to_gpu(&self) -> [[f32; 4]; 2] {
-        [self.centre.extend(self.radius).to_array(), [self.reach, 0.0, 0.0, 0.0]]
+        [
+            self.centre.extend(self.radius).to_array(),
+            [self.reach, 0.0, 0.0, 0.0],
+        ]
     }
 
     /// One shadow texel, in world units across.
@@ -195,7 +206,7 @@ impl ShadowMaps {
                 depth_compare: Some(wgpu::CompareFunction::LessEqual),
                 stencil: wgpu::StencilState::default(),
                 bias: wgpu::DepthBiasState {
-                    constant: 2, // a couple of depth ulps against acne on surfaces facing the light
+                    constant: 2,      // a couple of depth ulps against acne on surfaces facing the light
                     slope_scale: 2.0, // and more where the surface is steep to the light
                     clamp: 0.0,
                 },
@@ -215,8 +226,14 @@ impl ShadowMaps {
         });
         gpu.queue
             .write_buffer(&fit_buf, 0, bytemuck::cast_slice(&fit.to_gpu()));
-        let (texture, array_view, layer_views, views_buf, bind_group) =
-            Self::allocate(&device, &bind_group_layout, &fit_buf, size, MIN_LAYERS, pad_for_gl);
+        let (texture, array_view, layer_views, views_buf, bind_group) = Self::allocate(
+            &device,
+            &bind_group_layout,
+            &fit_buf,
+            size,
+            MIN_LAYERS,
+            pad_for_gl,
+        );
         ShadowMaps {
             device,
             pipeline,
@@ -256,7 +273,7 @@ impl ShadowMaps {
         wgpu::BindGroup,
     ) {
         // Pad 6k layers to 6k + 1 on GL, where they would otherwise become a cube map.
-        let allocated = if pad_for_gl && layers % 6 == 0 {
+        let allocated = if pad_for_gl && layers.is_multiple_of(6) {
             layers + 1
         } else {
             layers
@@ -316,7 +333,10 @@ impl ShadowMaps {
 
     /// Reallocates the array for at least `needed` layers (all maps are lost and will be redrawn).
     fn grow(&mut self, needed: u32) {
-        let capacity = needed.next_power_of_two().max(MIN_LAYERS).min(self.max_layers);
+        let capacity = needed
+            .next_power_of_two()
+            .max(MIN_LAYERS)
+            .min(self.max_layers);
         if capacity <= self.capacity {
             return;
         }
@@ -382,21 +402,19 @@ impl ShadowMaps {
         out.clear();
         self.redraw.clear();
         // Pass 1: groups that already hold a layer keep it.
-        out.extend(groups.iter().map(|g| {
-            match self.layer_of_key.get(&g.key) {
-                Some(&layer) => {
-                    let l = self.layers[layer as usize].as_mut().expect("mapped layer");
-                    l.used = frame;
-                    GroupShadow {
-                        layer,
-                        axis: l.drawn_axis,
-                    }
+        out.extend(groups.iter().map(|g| match self.layer_of_key.get(&g.key) {
+            Some(&layer) => {
+                let l = self.layers[layer as usize].as_mut().expect("mapped layer");
+                l.used = frame;
+                GroupShadow {
+                    layer,
+                    axis: l.drawn_axis,
                 }
-                None => GroupShadow {
-                    layer: NO_LAYER,
-                    axis: g.axis,
-                },
             }
+            None => GroupShadow {
+                layer: NO_LAYER,
+                axis: g.axis,
+            },
         }));
         // Pass 2: new groups take a free layer, or one no group used this frame.
         let mut cursor = 0usize;
@@ -404,8 +422,7 @@ impl ShadowMaps {
             if s.layer != NO_LAYER {
                 continue;
             }
-            while cursor < self.layers.len()
-                && self.layers[cursor].is_some_and(|l| l.used == frame)
+            while cursor < self.layers.len() && self.layers[cursor].is_some_and(|l| l.used == frame)
             {
                 cursor += 1;
             }
@@ -432,7 +449,9 @@ impl ShadowMaps {
             if s.layer == NO_LAYER || self.redraw.contains(&s.layer) {
                 continue;
             }
-            let l = self.layers[s.layer as usize].as_mut().expect("mapped layer");
+            let l = self.layers[s.layer as usize]
+                .as_mut()
+                .expect("mapped layer");
             let stale = match reuse_cos {
                 Some(cos_eps) => l.drawn_axis.dot(g.axis) < cos_eps,
                 None => true,
@@ -523,10 +542,22 @@ mod tests {
             radius: 1.0,
             reach: 4.0,
         };
-        for d in [Vec3::Y, Vec3::new(0.3, 0.9, -0.2).normalize(), Vec3::new(1.0, -0.1, 0.0).normalize()] {
-            for p in [fit.centre, fit.centre + 0.99 * Vec3::X, fit.centre - 0.99 * Vec3::Z, fit.centre + 0.99 * d] {
+        for d in [
+            Vec3::Y,
+            Vec3::new(0.3, 0.9, -0.2).normalize(),
+            Vec3::new(1.0, -0.1, 0.0).normalize(),
+        ] {
+            for p in [
+                fit.centre,
+                fit.centre + 0.99 * Vec3::X,
+                fit.centre - 0.99 * Vec3::Z,
+                fit.centre + 0.99 * d,
+            ] {
                 let c = fit.project(d, p);
-                assert!(c.x.abs() <= 1.0 && c.y.abs() <= 1.0 && (0.0..=1.0).contains(&c.z), "{d} {p} → {c}");
+                assert!(
+                    c.x.abs() <= 1.0 && c.y.abs() <= 1.0 && (0.0..=1.0).contains(&c.z),
+                    "{d} {p} → {c}"
+                );
             }
             // Toward the light is nearer (smaller depth).
             let near = fit.project(d, fit.centre + 0.5 * d).z;

@@ -74,7 +74,7 @@ pub fn lights_from_map(path: &std::path::Path, lights: usize) -> anyhow::Result<
 /// Lights for the render loop.
 pub enum LightFeed {
     /// A set read once; `poll` hands it out the first time.
-    Static(Option<LightSet>),
+    Static(Option<Box<LightSet>>),
     Stream(StreamClient),
 }
 
@@ -82,8 +82,8 @@ impl LightFeed {
     /// Opens a source: reads the file or extracts the lights now; starts the stream's thread.
     pub fn open(source: &Source, lights: usize) -> anyhow::Result<LightFeed> {
         Ok(match source {
-            Source::LightSetFile(p) => LightFeed::Static(Some(read_lightset(p)?)),
-            Source::Map(p) => LightFeed::Static(Some(lights_from_map(p, lights)?)),
+            Source::LightSetFile(p) => LightFeed::Static(Some(Box::new(read_lightset(p)?))),
+            Source::Map(p) => LightFeed::Static(Some(Box::new(lights_from_map(p, lights)?))),
             Source::Stream(url) => LightFeed::Stream(StreamClient::start(url)?),
         })
     }
@@ -91,7 +91,7 @@ impl LightFeed {
     /// A new set, if one arrived since the last call.
     pub fn poll(&mut self) -> Option<LightSet> {
         match self {
-            LightFeed::Static(set) => set.take(),
+            LightFeed::Static(set) => set.take().map(|s| *s),
             LightFeed::Stream(client) => client.take_latest(),
         }
     }
@@ -283,7 +283,13 @@ mod tests {
             Source::parse("ws://127.0.0.1:7878/v1/stream?lights=72"),
             Source::Stream("ws://127.0.0.1:7878/v1/stream?lights=72".into())
         );
-        assert_eq!(Source::parse("a/b.JSON"), Source::LightSetFile("a/b.JSON".into()));
-        assert_eq!(Source::parse("tests/data/city.exr"), Source::Map("tests/data/city.exr".into()));
+        assert_eq!(
+            Source::parse("a/b.JSON"),
+            Source::LightSetFile("a/b.JSON".into())
+        );
+        assert_eq!(
+            Source::parse("tests/data/city.exr"),
+            Source::Map("tests/data/city.exr".into())
+        );
     }
 }

@@ -11,7 +11,11 @@ pub struct TonemapPass {
 }
 
 impl TonemapPass {
-    pub fn new(device: &wgpu::Device, format: wgpu::TextureFormat, hdr_view: &wgpu::TextureView) -> Self {
+    pub fn new(
+        device: &wgpu::Device,
+        format: wgpu::TextureFormat,
+        hdr_view: &wgpu::TextureView,
+    ) -> Self {
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("tonemap.wgsl"),
             source: wgpu::ShaderSource::Wgsl(include_str!("../../shaders/tonemap.wgsl").into()),
@@ -65,7 +69,11 @@ impl TonemapPass {
         }
     }
 
-    fn bind(device: &wgpu::Device, bgl: &wgpu::BindGroupLayout, hdr_view: &wgpu::TextureView) -> wgpu::BindGroup {
+    fn bind(
+        device: &wgpu::Device,
+        bgl: &wgpu::BindGroupLayout,
+        hdr_view: &wgpu::TextureView,
+    ) -> wgpu::BindGroup {
         device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("tonemap"),
             layout: bgl,

@@ -314,7 +314,9 @@ fn bench(args: &ViewArgs) -> anyhow::Result<()> {
         set.source,
         args.shadow_size
     );
-    println!("{WARMUP} warm-up frames, then {frames} timed frames per path; each frame waits for the device");
+    println!(
+        "{WARMUP} warm-up frames, then {frames} timed frames per path; each frame waits for the device"
+    );
     let camera = camera_at(args, &scene, 0.0);
     let mut naive_opts = Options::naive();
     naive_opts.shadow_size = args.shadow_size;
@@ -327,15 +329,19 @@ fn bench(args: &ViewArgs) -> anyhow::Result<()> {
     let mut renderer = Renderer::new(&gpu, &scene, size, OUTPUT_FORMAT, naive_opts);
     let mut rows: Vec<(String, f64, FrameSummary)> = Vec::new();
     let mut scratch = Vec::new();
-    let paths: [(&str, Options, f32); 3] = [
-        ("naive", naive_opts, 0.0),
-        ("optimised, steady lights", opt, 0.0),
-        ("optimised, lights turning", opt, args.bench_turn_deg),
+    // (--bench-paths key, label, options, degrees the lights turn per frame)
+    let paths: [(&str, &str, Options, f32); 3] = [
+        ("naive", "naive", naive_opts, 0.0),
+        ("steady", "optimised, steady lights", opt, 0.0),
+        (
+            "turning",
+            "optimised, lights turning",
+            opt,
+            args.bench_turn_deg,
+        ),
     ];
-    for (name, options, turn) in paths {
-        let key = name.split([' ', ',']).last().unwrap_or(name);
-        let key = if name == "naive" { "naive" } else if key == "lights" { name.split(", ").nth(1).unwrap_or("").split(' ').next().unwrap_or("") } else { key };
-        if (name.contains("turning") && turn == 0.0) || !args.bench_paths.iter().any(|p| p == key) {
+    for (key, name, options, turn) in paths {
+        if (key == "turning" && turn == 0.0) || !args.bench_paths.iter().any(|p| p == key) {
             continue;
         }
         renderer.set_options(options);

@@ -123,7 +123,8 @@ impl App {
             self.lights.set(&mut live.renderer, &set.lights);
         }
         let texture = match live.surface.get_current_texture() {
-            wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            wgpu::CurrentSurfaceTexture::Success(t)
+            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
             wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => return,
             _ => {
                 // Outdated or lost: reconfigure and try at the next redraw.
