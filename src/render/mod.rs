@@ -418,7 +418,7 @@ impl Renderer {
     }
 }
 
-/// An exposure that puts a grey (ρ = 0.5) horizontal surface under the lights at about 60 % of the
+/// An exposure that puts a grey (ρ = 0.5) horizontal surface under the lights at about 45 % of the
 /// display's range after the tonemap: radiance 0.5/π · E_up, where E_up = Σ E_k · max(0, l_k.y).
 pub fn auto_exposure(lights: &[Light]) -> f32 {
     let e_up: f32 = lights
@@ -429,9 +429,9 @@ pub fn auto_exposure(lights: &[Light]) -> f32 {
         })
         .sum();
     let radiance = 0.5 / std::f32::consts::PI * e_up;
-    // 1 − exp(−x) = 0.6 at x ≈ 0.92.
+    // 1 − exp(−x) = 0.45 at x ≈ 0.6.
     if radiance > 0.0 && radiance.is_finite() {
-        0.92 / radiance
+        0.6 / radiance
     } else {
         1.0
     }
