@@ -14,6 +14,9 @@ const c_max_draws: u32 = 256u;
 // A pipeline constant, not a uniform: lavapipe runs both sides of every branch, so a uniform
 // choice between 1 and 4 taps would cost 5.
 override c_pcf_taps: u32 = 1u;
+// Whether this pipeline shades glossy pixels (the stencil sends it only those); the Lambertian
+// pipeline leaves the lobe's code out.
+override c_glossy: bool = true;
 
 struct Globals {
     camera_pos: vec4<f32>,
@@ -151,7 +154,7 @@ fn fs_light(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
             let l = u_lights.items[k].to_light.xyz;
             let ndl = max(dot(n, l), 0.0);
             var f = diffuse;
-            if ks > 0.0 && (!refine || dot(l, r) > cos_cone) {
+            if c_glossy && ks > 0.0 && (!refine || dot(l, r) > cos_cone) {
                 let h = normalize(l + v);
                 f += vec3<f32>(lobe_norm * pow(max(dot(n, h), 0.0), s));
             }

@@ -343,11 +343,14 @@ pub struct DrawRange {
     /// Cone axis (unit) and sin of its half-angle α; `sin_alpha = 1` when α ≥ 90°.
     pub axis: Vec3,
     pub sin_alpha: f32,
+    /// The triangles have a glossy lobe (k_s > 0); the others are Lambertian.
+    pub glossy: bool,
 }
 
 impl Scene {
-    /// The index list reordered by normal bin (B × B octahedral bins of each triangle's mean vertex
-    /// normal), casters still first, and one [`DrawRange`] per non-empty (casters/receivers, bin).
+    /// The index list reordered by material class (glossy or Lambertian) and normal bin (B × B
+    /// octahedral bins of each triangle's mean vertex normal), casters still first, and one
+    /// [`DrawRange`] per non-empty (casters/receivers, class, bin).
     /// A light can reach a triangle of a range only if to_light·axis > −sin α (ALGORITHMS.md §6),
     /// so the shading pass gives each range the short list of lights that pass.
     pub fn bucketed(&self, side: u32) -> (Vec<u32>, Vec<DrawRange>) {
@@ -357,12 +360,15 @@ impl Scene {
         let (casters, all) = self.index_ranges();
         for part in [casters, self.caster_indices..all.end] {
             let tris = &self.indices[part.start as usize..part.end as usize];
+            let glossy = |i: u32| self.vertices[i as usize].gloss[0] > 0.0;
             let mut keyed: Vec<(u32, [u32; 3])> = tris
                 .chunks_exact(3)
                 .map(|t| {
                     let mean = normal(t[0]) + normal(t[1]) + normal(t[2]);
                     let bin = super::shading::bin_of(mean.normalize_or(Vec3::Y), side);
-                    (bin, [t[0], t[1], t[2]])
+                    // The class goes above the bin bits: sorting groups each class's bins.
+                    let class = t.iter().any(|&i| glossy(i)) as u32;
+                    (class << 16 | bin, [t[0], t[1], t[2]])
                 })
                 .collect();
             // Stable: triangles keep their order within a bin.
@@ -395,6 +401,7 @@ impl Scene {
                     } else {
                         alpha.sin()
                     },
+                    glossy: bin >> 16 != 0,
                 });
                 start = end;
             }

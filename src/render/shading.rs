@@ -37,7 +37,10 @@ pub const MAX_DRAWS: usize = 256;
 /// Format of the HDR target.
 pub const HDR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Format of the camera's depth buffer.
-pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Format of the camera's depth buffer; its stencil marks glossy pixels (see [`ShadingPass`]).
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth24PlusStencil8;
+/// Stencil value of pixels whose surface has a glossy lobe.
+const STENCIL_GLOSSY: u32 = 1;
 /// Side B of the B × B grid of normal bins (64 bins of about 25°).
 pub const BIN_SIDE: u32 = 8;
 
@@ -242,7 +245,8 @@ pub struct ShadingPass {
     geometry_pipeline: wgpu::RenderPipeline,
     camera: wgpu::Buffer,
     camera_bind_group: wgpu::BindGroup,
-    light_pipeline: wgpu::RenderPipeline,
+    /// [Lambertian pixels, glossy pixels].
+    light_pipelines: [wgpu::RenderPipeline; 2],
     light_layout: wgpu::BindGroupLayout,
     globals: wgpu::Buffer,
     lights: wgpu::Buffer,
@@ -335,7 +339,18 @@ impl ShadingPass {
                 format: DEPTH_FORMAT,
                 depth_write_enabled: Some(true),
                 depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: wgpu::StencilState::default(),
+                // Each visible pixel keeps the stencil reference of its draw: its material class.
+                stencil: wgpu::StencilState {
+                    front: wgpu::StencilFaceState {
+                        compare: wgpu::CompareFunction::Always,
+                        fail_op: wgpu::StencilOperation::Keep,
+                        depth_fail_op: wgpu::StencilOperation::Keep,
+                        pass_op: wgpu::StencilOperation::Replace,
+                    },
+                    back: wgpu::StencilFaceState::IGNORE,
+                    read_mask: 0xff,
+                    write_mask: 0xff,
+                },
                 bias: wgpu::DepthBiasState::default(),
             }),
             multisample: wgpu::MultisampleState::default(),
@@ -409,30 +424,60 @@ impl ShadingPass {
             bind_group_layouts: &[Some(&light_layout)],
             immediate_size: 0,
         });
-        let light_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("light"),
-            layout: Some(&layout),
-            vertex: wgpu::VertexState {
-                module: &shader,
-                entry_point: Some("vs_light"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: None,
-            multisample: wgpu::MultisampleState::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &shader,
-                entry_point: Some("fs_light"),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &[("c_pcf_taps", pcf_taps as f64)],
-                    ..Default::default()
+        // Two lighting pipelines: for Lambertian pixels (stencil 0) without the glossy code, and for
+        // glossy pixels (stencil 1) with it. Lavapipe runs both sides of a branch, so leaving the
+        // glossy code out where k_s = 0 is the only way not to pay for it there.
+        let light_pipeline = |glossy: bool| {
+            let constants = [
+                ("c_pcf_taps", pcf_taps as f64),
+                ("c_glossy", glossy as u32 as f64),
+            ];
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(if glossy {
+                    "light glossy"
+                } else {
+                    "light diffuse"
+                }),
+                layout: Some(&layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_light"),
+                    compilation_options: Default::default(),
+                    buffers: &[],
                 },
-                targets: &[Some(HDR_FORMAT.into())],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH_FORMAT,
+                    depth_write_enabled: Some(false),
+                    depth_compare: Some(wgpu::CompareFunction::Always),
+                    stencil: wgpu::StencilState {
+                        front: wgpu::StencilFaceState {
+                            compare: wgpu::CompareFunction::Equal,
+                            fail_op: wgpu::StencilOperation::Keep,
+                            depth_fail_op: wgpu::StencilOperation::Keep,
+                            pass_op: wgpu::StencilOperation::Keep,
+                        },
+                        back: wgpu::StencilFaceState::IGNORE,
+                        read_mask: 0xff,
+                        write_mask: 0,
+                    },
+                    bias: wgpu::DepthBiasState::default(),
+                }),
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some("fs_light"),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &constants,
+                        ..Default::default()
+                    },
+                    targets: &[Some(HDR_FORMAT.into())],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let light_pipelines = [light_pipeline(false), light_pipeline(true)];
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("shadow compare"),
             address_mode_u: wgpu::AddressMode::ClampToEdge,
@@ -450,7 +495,7 @@ impl ShadingPass {
             geometry_pipeline,
             camera,
             camera_bind_group,
-            light_pipeline,
+            light_pipelines,
             light_layout,
             globals: uniform_buffer(device, "light globals", std::mem::size_of::<GlobalsRaw>()),
             lights: uniform_buffer(
@@ -640,7 +685,11 @@ impl ShadingPass {
                         load: wgpu::LoadOp::Clear(1.0),
                         store: wgpu::StoreOp::Discard,
                     }),
-                    stencil_ops: None,
+                    // The lighting pass reads the material classes.
+                    stencil_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(0),
+                        store: wgpu::StoreOp::Store,
+                    }),
                 }),
                 timestamp_writes: None,
                 occlusion_query_set: None,
@@ -652,6 +701,7 @@ impl ShadingPass {
             pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
             // One draw per normal bucket; the instance index tells the pixel its bucket.
             for (i, d) in scene.draws.iter().enumerate() {
+                pass.set_stencil_reference(if d.glossy { STENCIL_GLOSSY } else { 0 });
                 pass.draw_indexed(d.range.clone(), 0, i as u32..i as u32 + 1);
             }
         }
@@ -703,14 +753,22 @@ impl ShadingPass {
                     store: wgpu::StoreOp::Store,
                 },
             })],
-            depth_stencil_attachment: None,
+            // Read-only: the stencil selects the pixels of each pipeline.
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &self.targets.depth,
+                depth_ops: None,
+                stencil_ops: None,
+            }),
             timestamp_writes: None,
             occlusion_query_set: None,
             multiview_mask: None,
         });
-        pass.set_pipeline(&self.light_pipeline);
         pass.set_bind_group(0, &*bind_group, &[]);
-        pass.draw(0..3, 0..1);
+        for (pipeline, reference) in self.light_pipelines.iter().zip([0, STENCIL_GLOSSY]) {
+            pass.set_pipeline(pipeline);
+            pass.set_stencil_reference(reference);
+            pass.draw(0..3, 0..1);
+        }
     }
 }
 
@@ -738,6 +796,7 @@ mod tests {
             range: 0..3,
             axis: Vec3::Y,
             sin_alpha: 10f32.to_radians().sin(),
+            glossy: false,
         }];
         let light = |id, d: Vec3| Light {
             id,
