@@ -45,8 +45,8 @@ pub struct LightBudget {
     /// Smoothed frame time (exponential moving average).
     ema_ms: Option<f32>,
     count: usize,
-    /// Frames to wait after a change before judging again (the new count's shadow maps cost a
-    /// frame or two to draw).
+    /// Frames to wait before judging (again): at the start (shader compilation, every shadow map
+    /// drawn) and after a change (the new count's maps cost a frame or two to draw).
     cooldown: u32,
 }
 
@@ -59,7 +59,7 @@ impl LightBudget {
             target_ms: 1000.0 / target_fps.max(0.1),
             ema_ms: None,
             count: start.max(Self::MIN_LIGHTS),
-            cooldown: 0,
+            cooldown: 2,
         }
     }
 
@@ -69,21 +69,25 @@ impl LightBudget {
 
     /// Records one frame's time; returns the count to draw next (at most `available`).
     pub fn update(&mut self, frame_ms: f32, available: usize) -> usize {
+        if self.cooldown > 0 {
+            // Frames right after a change say little about the new count; forget the old ones.
+            self.cooldown -= 1;
+            self.ema_ms = None;
+            return self.count.min(available.max(Self::MIN_LIGHTS));
+        }
         let ema = match self.ema_ms {
-            Some(e) => 0.8 * e + 0.2 * frame_ms,
+            Some(e) => 0.5 * e + 0.5 * frame_ms,
             None => frame_ms,
         };
         self.ema_ms = Some(ema);
-        if self.cooldown > 0 {
-            self.cooldown -= 1;
-        } else if ema > 1.1 * self.target_ms && self.count > Self::MIN_LIGHTS {
+        if ema > 1.1 * self.target_ms && self.count > Self::MIN_LIGHTS {
             // Shading cost is about linear in the count: scale toward the target.
             let scale = (self.target_ms / ema).clamp(0.5, 0.9);
             self.count = ((self.count as f32 * scale) as usize).max(Self::MIN_LIGHTS);
-            self.cooldown = 5;
+            self.cooldown = 2;
         } else if ema < 0.8 * self.target_ms && self.count < available {
             self.count = (self.count + (self.count / 8).max(1)).min(available);
-            self.cooldown = 5;
+            self.cooldown = 2;
         }
         self.count = self.count.min(available.max(Self::MIN_LIGHTS));
         self.count
@@ -121,6 +125,9 @@ mod tests {
     #[test]
     fn the_budget_cuts_when_slow_and_grows_when_fast() {
         let mut b = LightBudget::new(30.0, 72);
+        // The first frames (compilation, every map drawn) are not judged.
+        assert_eq!(b.update(800.0, 72), 72);
+        assert_eq!(b.update(300.0, 72), 72);
         let n = b.update(100.0, 72);
         assert!(n < 72, "{n}");
         for _ in 0..200 {
