@@ -39,8 +39,10 @@ pub const HDR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Format of the camera's depth buffer.
 /// Format of the camera's depth buffer; its stencil marks glossy pixels (see [`ShadingPass`]).
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth24PlusStencil8;
-/// Stencil value of pixels whose surface has a glossy lobe.
-const STENCIL_GLOSSY: u32 = 1;
+/// Stencil values of the material classes: pixels with no surface keep 0 and are never lit (the
+/// stencil test drops them before the lighting shader runs).
+const STENCIL_LAMBERTIAN: u32 = 1;
+const STENCIL_GLOSSY: u32 = 2;
 /// Side B of the B × B grid of normal bins (64 bins of about 25°).
 pub const BIN_SIDE: u32 = 8;
 
@@ -424,8 +426,8 @@ impl ShadingPass {
             bind_group_layouts: &[Some(&light_layout)],
             immediate_size: 0,
         });
-        // Two lighting pipelines: for Lambertian pixels (stencil 0) without the glossy code, and for
-        // glossy pixels (stencil 1) with it. Lavapipe runs both sides of a branch, so leaving the
+        // Two lighting pipelines: for Lambertian pixels (stencil 1) without the glossy code, and for
+        // glossy pixels (stencil 2) with it; background pixels (0) run neither. Lavapipe runs both sides of a branch, so leaving the
         // glossy code out where k_s = 0 is the only way not to pay for it there.
         let light_pipeline = |glossy: bool| {
             let constants = [
@@ -701,7 +703,11 @@ impl ShadingPass {
             pass.set_index_buffer(scene.indices.slice(..), wgpu::IndexFormat::Uint32);
             // One draw per normal bucket; the instance index tells the pixel its bucket.
             for (i, d) in scene.draws.iter().enumerate() {
-                pass.set_stencil_reference(if d.glossy { STENCIL_GLOSSY } else { 0 });
+                pass.set_stencil_reference(if d.glossy {
+                    STENCIL_GLOSSY
+                } else {
+                    STENCIL_LAMBERTIAN
+                });
                 pass.draw_indexed(d.range.clone(), 0, i as u32..i as u32 + 1);
             }
         }
@@ -764,7 +770,11 @@ impl ShadingPass {
             multiview_mask: None,
         });
         pass.set_bind_group(0, &*bind_group, &[]);
-        for (pipeline, reference) in self.light_pipelines.iter().zip([0, STENCIL_GLOSSY]) {
+        for (pipeline, reference) in self
+            .light_pipelines
+            .iter()
+            .zip([STENCIL_LAMBERTIAN, STENCIL_GLOSSY])
+        {
             pass.set_pipeline(pipeline);
             pass.set_stencil_reference(reference);
             pass.draw(0..3, 0..1);
