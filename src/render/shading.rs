@@ -585,24 +585,6 @@ impl ShadingPass {
         }
     }
 
-    /// Mean over the draws of the fraction of groups in their lists (1 = nothing culled), weighted
-    /// by the draws' index counts.
-    pub fn mean_list_fraction(&self, draws: &[DrawRange]) -> f32 {
-        let Some(all) = self.lists_raw.last() else {
-            return 1.0;
-        };
-        if all[1] == 0 {
-            return 1.0;
-        }
-        let total: u32 = draws.iter().map(|d| d.range.len() as u32).sum();
-        let kept: f32 = draws
-            .iter()
-            .zip(&self.lists_raw)
-            .map(|(d, l)| d.range.len() as f32 * l[1] as f32 / all[1] as f32)
-            .sum();
-        kept / total.max(1) as f32
-    }
-
     /// Uploads each group's shadow layer and matrix; call when either changes.
     pub fn upload_groups(
         &mut self,

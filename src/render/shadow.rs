@@ -377,11 +377,6 @@ impl ShadowMaps {
         self.layer_of_key.clear();
     }
 
-    /// Layers allocated.
-    pub fn capacity(&self) -> u32 {
-        self.capacity
-    }
-
     /// Chooses a layer and a matrix for each group, and records the depth passes of the layers that
     /// must be (re)drawn into `encoder`. `reuse_cos`: cos ε, or `None` to redraw every map.
     /// Returns how many maps were drawn.
