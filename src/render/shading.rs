@@ -281,7 +281,7 @@ impl ShadingPass {
         pcf_taps: u32,
     ) -> ShadingPass {
         assert!(
-            draws < MAX_DRAWS,
+            draws <= MAX_DRAWS,
             "{draws} draws; the lighting pass knows {MAX_DRAWS}"
         );
         // The geometry pass.
