@@ -39,6 +39,10 @@ enum Command {
     /// Accuracy × speed charts, temporal stability and the hard-case table of every method
     /// (writes docs/eval/ and the generated sections of docs/EVALUATION.md).
     Eval(EvalArgs),
+    /// The render client: a scene lit by the lights of a stream, a LightSet file or a map, with
+    /// shadows; windowed, headless (PNG frames) or --bench (docs/RENDER.md).
+    #[cfg(feature = "render")]
+    View(vemlight::render::view::ViewArgs),
 }
 
 #[derive(clap::Args)]
@@ -227,6 +231,8 @@ fn main() -> ExitCode {
         Command::Eval(args) => run_eval(args),
         Command::Serve(args) => run_serve(*args),
         Command::Healthcheck { addr } => healthcheck(&addr),
+        #[cfg(feature = "render")]
+        Command::View(args) => vemlight::render::view::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,295 @@
+//! Where the viewer's lights come from: a LightSet JSON file, an environment map (lights extracted
+//! in-process), or the daemon's WebSocket stream.
+//!
+//! Input: the `SOURCE` argument of `vemlight view`. Output: [`LightSet`]s through [`LightFeed::poll`].
+//! The stream runs a blocking `tungstenite` client on a background thread with latest-state
+//! semantics: the render loop takes the newest set and never waits on the network. When the
+//! connection drops the feed keeps the last set (the viewer goes on drawing it, marked stale) and
+//! reconnects with exponential backoff.
+
+use crate::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
+use crate::lights::Extractor;
+use crate::lightset::{LightRequest, LightSet, lightset_for_map};
+use anyhow::{Context, bail};
+use std::io::ErrorKind;
+use std::net::TcpStream;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+/// The WebSocket subprotocol of the stream (DESIGN.md).
+pub const SUBPROTOCOL: &str = "vemlight.v1";
+/// Where `vemlight serve` listens by default.
+pub const DEFAULT_STREAM: &str = "ws://127.0.0.1:7878/v1/stream";
+
+/// A parsed `SOURCE`.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Source {
+    /// `ws://host:port/v1/stream?lights=N`.
+    Stream(String),
+    /// A LightSet document (`.json`).
+    LightSetFile(PathBuf),
+    /// An environment map (`.exr`, `.hdr`): lights extracted here with `lightset_for_map`.
+    Map(PathBuf),
+}
+
+impl Source {
+    pub fn parse(s: &str) -> Source {
+        if s.starts_with("ws://") || s.starts_with("wss://") {
+            Source::Stream(s.to_owned())
+        } else if s.to_ascii_lowercase().ends_with(".json") {
+            Source::LightSetFile(s.into())
+        } else {
+            Source::Map(s.into())
+        }
+    }
+}
+
+/// Reads a LightSet document.
+pub fn read_lightset(path: &std::path::Path) -> anyhow::Result<LightSet> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{} is not a LightSet", path.display()))
+}
+
+/// Extracts `lights` lights from a map file (the CLI's defaults otherwise).
+pub fn lights_from_map(path: &std::path::Path, lights: usize) -> anyhow::Result<LightSet> {
+    let req = LightRequest {
+        lights,
+        estimate_error: false,
+        sh9: false,
+        ..LightRequest::default()
+    };
+    req.validate().map_err(anyhow::Error::msg)?;
+    let map = EnvMap::open(path, None, DEFAULT_MAX_PIXELS)?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    Ok(lightset_for_map(&mut Extractor::new(), &map, &req, &name))
+}
+
+/// Lights for the render loop.
+pub enum LightFeed {
+    /// A set read once; `poll` hands it out the first time.
+    Static(Option<Box<LightSet>>),
+    Stream(StreamClient),
+}
+
+impl LightFeed {
+    /// Opens a source: reads the file or extracts the lights now; starts the stream's thread.
+    pub fn open(source: &Source, lights: usize) -> anyhow::Result<LightFeed> {
+        Ok(match source {
+            Source::LightSetFile(p) => LightFeed::Static(Some(Box::new(read_lightset(p)?))),
+            Source::Map(p) => LightFeed::Static(Some(Box::new(lights_from_map(p, lights)?))),
+            Source::Stream(url) => LightFeed::Stream(StreamClient::start(url)?),
+        })
+    }
+
+    /// A new set, if one arrived since the last call.
+    pub fn poll(&mut self) -> Option<LightSet> {
+        match self {
+            LightFeed::Static(set) => set.take().map(|s| *s),
+            LightFeed::Stream(client) => client.take_latest(),
+        }
+    }
+
+    /// Whether the lights on screen may be out of date (the stream is down).
+    pub fn is_stale(&self) -> bool {
+        match self {
+            LightFeed::Static(_) => false,
+            LightFeed::Stream(client) => !client.is_connected(),
+        }
+    }
+
+    /// Waits up to `timeout` for a first set (headless runs need lights before the first frame).
+    pub fn wait_first(&mut self, timeout: Duration) -> anyhow::Result<LightSet> {
+        let start = std::time::Instant::now();
+        loop {
+            if let Some(set) = self.poll() {
+                return Ok(set);
+            }
+            if start.elapsed() > timeout {
+                let why = match self {
+                    LightFeed::Stream(c) => c.last_error(),
+                    LightFeed::Static(_) => String::new(),
+                };
+                bail!("no LightSet received within {timeout:?} {why}");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+/// What the stream thread shares with the render loop.
+#[derive(Default)]
+struct Shared {
+    latest: Option<LightSet>,
+    connected: bool,
+    last_error: String,
+    /// Connections made so far (for tests and the log).
+    connections: u32,
+}
+
+/// The background WebSocket client.
+pub struct StreamClient {
+    shared: Arc<Mutex<Shared>>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl StreamClient {
+    /// Starts the client thread (it connects, and reconnects, on its own).
+    pub fn start(url: &str) -> anyhow::Result<StreamClient> {
+        if url.starts_with("wss://") {
+            bail!("wss:// is not supported (the client is built without TLS); use ws://");
+        }
+        // Check the URL now, so that a typo is an error rather than an endless reconnect.
+        tungstenite::client::IntoClientRequest::into_client_request(url)
+            .with_context(|| format!("bad stream URL {url}"))?;
+        let shared = Arc::new(Mutex::new(Shared::default()));
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = {
+            let (shared, stop, url) = (shared.clone(), stop.clone(), url.to_owned());
+            std::thread::Builder::new()
+                .name("vemlight-stream".into())
+                .spawn(move || stream_loop(&url, &shared, &stop))?
+        };
+        Ok(StreamClient {
+            shared,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    pub fn take_latest(&self) -> Option<LightSet> {
+        self.shared.lock().ok()?.latest.take()
+    }
+
+    pub fn is_connected(&self) -> bool {
+        self.shared.lock().map(|s| s.connected).unwrap_or(false)
+    }
+
+    pub fn connections(&self) -> u32 {
+        self.shared.lock().map(|s| s.connections).unwrap_or(0)
+    }
+
+    pub fn last_error(&self) -> String {
+        self.shared
+            .lock()
+            .map(|s| s.last_error.clone())
+            .unwrap_or_default()
+    }
+}
+
+impl Drop for StreamClient {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Connect, read until the connection ends, back off, repeat — until `stop`.
+fn stream_loop(url: &str, shared: &Mutex<Shared>, stop: &AtomicBool) {
+    const FIRST_BACKOFF: Duration = Duration::from_millis(250);
+    const MAX_BACKOFF: Duration = Duration::from_secs(5);
+    let mut backoff = FIRST_BACKOFF;
+    while !stop.load(Ordering::Relaxed) {
+        let result = connect_and_read(url, shared, stop, &mut backoff);
+        if let Ok(mut s) = shared.lock() {
+            s.connected = false;
+            if let Err(e) = result {
+                s.last_error = format!("({e:#})");
+            }
+        }
+        // Sleep in short steps so that dropping the client is prompt.
+        let until = std::time::Instant::now() + backoff;
+        while std::time::Instant::now() < until && !stop.load(Ordering::Relaxed) {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        backoff = (backoff * 2).min(MAX_BACKOFF);
+    }
+}
+
+/// One connection's life. Resets `backoff` once connected.
+fn connect_and_read(
+    url: &str,
+    shared: &Mutex<Shared>,
+    stop: &AtomicBool,
+    backoff: &mut Duration,
+) -> anyhow::Result<()> {
+    use tungstenite::client::IntoClientRequest;
+    let mut request = url.into_client_request()?;
+    request.headers_mut().insert(
+        "Sec-WebSocket-Protocol",
+        tungstenite::http::HeaderValue::from_static(SUBPROTOCOL),
+    );
+    let uri = request.uri().clone();
+    let host = uri.host().context("the URL has no host")?;
+    let port = uri.port_u16().unwrap_or(80);
+    let addr = std::net::ToSocketAddrs::to_socket_addrs(&(host, port))?
+        .next()
+        .context("the host does not resolve")?;
+    let tcp = TcpStream::connect_timeout(&addr, Duration::from_secs(3))?;
+    let (mut ws, _response) = tungstenite::client(request, tcp)
+        .map_err(|e| anyhow::anyhow!("WebSocket handshake with {url} failed: {e}"))?;
+    // Short read timeouts let the thread notice `stop`; a timeout is not a dropped connection.
+    ws.get_ref()
+        .set_read_timeout(Some(Duration::from_millis(200)))?;
+    *backoff = Duration::from_millis(250);
+    if let Ok(mut s) = shared.lock() {
+        s.connected = true;
+        s.connections += 1;
+    }
+    while !stop.load(Ordering::Relaxed) {
+        match ws.read() {
+            Ok(tungstenite::Message::Text(text)) => match serde_json::from_str::<LightSet>(&text) {
+                Ok(set) => {
+                    if let Ok(mut s) = shared.lock() {
+                        s.latest = Some(set); // latest state: an unread older set is replaced
+                    }
+                }
+                Err(e) => {
+                    if let Ok(mut s) = shared.lock() {
+                        s.last_error = format!("(a message was not a LightSet: {e})");
+                    }
+                }
+            },
+            Ok(tungstenite::Message::Close(_)) => return Ok(()),
+            Ok(_) => {} // pings are answered by tungstenite; binary messages are not ours
+            Err(tungstenite::Error::Io(e))
+                if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+            Err(tungstenite::Error::ConnectionClosed | tungstenite::Error::AlreadyClosed) => {
+                return Ok(());
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    let _ = ws.close(None);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sources_are_told_apart_by_scheme_and_extension() {
+        assert_eq!(
+            Source::parse("ws://127.0.0.1:7878/v1/stream?lights=72"),
+            Source::Stream("ws://127.0.0.1:7878/v1/stream?lights=72".into())
+        );
+        assert_eq!(
+            Source::parse("a/b.JSON"),
+            Source::LightSetFile("a/b.JSON".into())
+        );
+        assert_eq!(
+            Source::parse("tests/data/city.exr"),
+            Source::Map("tests/data/city.exr".into())
+        );
+    }
+}

@@ -1,0 +1,71 @@
+//! No graphics adapter: `vemlight view` says so clearly and exits non-zero, without a panic. A
+//! backend that cannot exist on this platform (Metal off Apple; Vulkan/GL elsewhere) stands in for a
+//! machine without a driver.
+#![cfg(feature = "render")]
+
+use std::process::Command;
+
+fn missing_backend() -> &'static str {
+    if cfg!(target_vendor = "apple") {
+        "dx12"
+    } else {
+        "metal"
+    }
+}
+
+fn lightset_file() -> std::path::PathBuf {
+    let out = Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args([
+            "lights",
+            "tests/data/overcast-plaza.exr",
+            "-n",
+            "4",
+            "--no-sh",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let path =
+        std::env::temp_dir().join(format!("vemlight-no-adapter-{}.json", std::process::id()));
+    std::fs::write(&path, out.stdout).unwrap();
+    path
+}
+
+fn check(out: std::process::Output) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!("exit {:?}, stderr:\n{stderr}", out.status.code());
+    assert!(!out.status.success(), "must fail");
+    assert_ne!(
+        out.status.code(),
+        Some(101),
+        "101 is Rust's panic exit code"
+    );
+    assert!(!stderr.contains("panicked"), "no panic: {stderr}");
+    assert!(stderr.contains("no graphics adapter found"), "{stderr}");
+    assert!(
+        stderr.contains("mesa-vulkan-drivers"),
+        "says what to install: {stderr}"
+    );
+}
+
+#[test]
+fn no_adapter_through_wgpu_backend_is_a_clear_error() {
+    let json = lightset_file();
+    let dir = std::env::temp_dir().join(format!("vemlight-no-adapter-out-{}", std::process::id()));
+    let out = Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(["view", "--headless", "--frames", "1", "--out"])
+        .arg(&dir)
+        .arg(&json)
+        .env("WGPU_BACKEND", missing_backend())
+        .output()
+        .unwrap();
+    check(out);
+    // And through --backend, in --bench mode.
+    let out = Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(["view", "--bench", "--backend", missing_backend()])
+        .arg(&json)
+        .output()
+        .unwrap();
+    check(out);
+    let _ = std::fs::remove_file(json);
+}

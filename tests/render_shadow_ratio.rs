@@ -1,0 +1,139 @@
+//! A floating slab over a ground plane, lit by directional lights: the radiance of the ground in the
+//! slab's shadows and in the open must be what DESIGN.md's diffuse formula predicts,
+//! L = ρ/π · Σ_k E_k · max(0, n·l_k) · V_k, here with n = +Y and V_k ∈ {0, 1}.
+//! Rendered headless through wgpu (lavapipe in CI); read back from the linear HDR target.
+#![cfg(feature = "render")]
+
+use glam::Vec3;
+use std::f32::consts::PI;
+use vemlight::lights::Light;
+use vemlight::render::gpu::Gpu;
+use vemlight::render::overlay::Status;
+use vemlight::render::scene::{Camera, Material, Scene};
+use vemlight::render::{OUTPUT_FORMAT, Options, Renderer};
+
+const SIZE: (u32, u32) = (320, 240);
+const ALBEDO: f32 = 0.5;
+/// Relative tolerance on radiances and ratios: the samples sit well inside the shadows and the open,
+/// so PCF and the normal offset do not reach them, and the HDR target and G-buffer are floats; what
+/// is left is float rounding (lavapipe: within 1e-6). 0.2 % leaves room for other drivers.
+const TOLERANCE: f32 = 0.002;
+
+fn scene() -> Scene {
+    let mut s = Scene::default();
+    // The slab floats from y = 1 to 1.2, so the shadow of a light straight above is visible.
+    s.add_box(
+        Vec3::new(-0.5, 1.0, -0.5),
+        Vec3::new(0.5, 1.2, 0.5),
+        Material::diffuse([0.7; 3]),
+    );
+    s.add_ground(0.0, 4.0, Material::diffuse([ALBEDO; 3]));
+    s
+}
+
+fn camera() -> Camera {
+    Camera {
+        eye: Vec3::new(0.0, 4.0, 6.0),
+        target: Vec3::ZERO,
+        fov_y: 50f32.to_radians(),
+        near: 0.1,
+        far: 30.0,
+    }
+}
+
+fn light(id: u32, to_light: Vec3, e: f32) -> Light {
+    Light {
+        id,
+        to_light: to_light.normalize().to_array(),
+        irradiance: [e; 3],
+        solid_angle: 0.01,
+    }
+}
+
+/// Renders and returns the HDR radiance (red channel) at the pixels of world points.
+fn radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
+    let gpu = Gpu::new(Gpu::backends(None)).expect("a graphics adapter (CI installs lavapipe)");
+    let options = Options {
+        exposure: Some(1.0),
+        overlay: false,
+        pcf_taps: 4,
+        ..Options::optimised()
+    };
+    let mut r = Renderer::new(&gpu, &scene(), SIZE, OUTPUT_FORMAT, options);
+    r.set_lights(lights);
+    r.render_headless(&camera(), &Status::default());
+    let hdr = r.read_hdr();
+    let view_proj = camera().view_proj(SIZE.0 as f32 / SIZE.1 as f32);
+    points
+        .iter()
+        .map(|&p| {
+            let ndc = view_proj.project_point3(p);
+            let x = ((ndc.x + 1.0) * 0.5 * SIZE.0 as f32) as usize;
+            let y = ((1.0 - ndc.y) * 0.5 * SIZE.1 as f32) as usize;
+            // The 3 × 3 pixels around must agree (the point is not on an edge).
+            let at = |x: usize, y: usize| hdr[y * SIZE.0 as usize + x][0];
+            let c = at(x, y);
+            for (dx, dy) in [(0, 1), (2, 1), (1, 0), (1, 2)] {
+                let v = at(x + dx - 1, y + dy - 1);
+                assert!(
+                    (v - c).abs() <= TOLERANCE * c.max(1e-3),
+                    "{p}: neighbour {v} vs {c}"
+                );
+            }
+            c
+        })
+        .collect()
+}
+
+fn close(a: f32, b: f32) -> bool {
+    (a - b).abs() <= TOLERANCE * b.abs().max(1e-6)
+}
+
+#[test]
+fn one_light_straight_above_leaves_the_shadow_black_and_the_open_at_rho_over_pi_e() {
+    let e = 3.0;
+    let under = Vec3::new(0.0, 0.0, 0.0); // below the slab
+    let open = Vec3::new(1.5, 0.0, 1.5);
+    let l = radiance_at(&[light(0, Vec3::Y, e)], &[under, open]);
+    let expected_open = ALBEDO / PI * e;
+    println!(
+        "shadow {} open {} (expected 0 and {expected_open})",
+        l[0], l[1]
+    );
+    assert!(
+        close(l[1], expected_open),
+        "open ground {} vs ρ/π·E = {expected_open}",
+        l[1]
+    );
+    // Shadowed / lit = 0 / (ρ/π·E): no light, and no ambient term.
+    assert!(
+        l[0] <= 1e-4 * expected_open,
+        "shadow {} should be black",
+        l[0]
+    );
+}
+
+#[test]
+fn a_second_light_at_60_degrees_gives_the_ratios_of_the_diffuse_formula() {
+    // E1 straight above; E2 at 60° from the zenith toward +X, so n·l2 = cos 60° = 0.5. The slab's
+    // shadow from light 2 falls 1.73–2.08 units toward −X (heights 1–1.2 × tan 60°).
+    let (e1, e2) = (3.0, 2.0);
+    let l2 = Vec3::new(60f32.to_radians().sin(), 60f32.to_radians().cos(), 0.0);
+    let under = Vec3::new(0.0, 0.0, 0.0); // light 1 blocked
+    let beside = Vec3::new(-1.9, 0.0, 0.0); // light 2 blocked
+    let open = Vec3::new(1.5, 0.0, 1.5); // neither
+    let l = radiance_at(
+        &[light(0, Vec3::Y, e1), light(1, l2, e2)],
+        &[under, beside, open],
+    );
+    let k = ALBEDO / PI;
+    let (expect_under, expect_beside, expect_open) = (k * e2 * 0.5, k * e1, k * (e1 + e2 * 0.5));
+    println!(
+        "under {} beside {} open {}; expected {expect_under} {expect_beside} {expect_open}",
+        l[0], l[1], l[2]
+    );
+    assert!(close(l[2], expect_open), "open {} vs {expect_open}", l[2]);
+    // The ratios: (E2/2) / (E1 + E2/2) = 0.25 and E1 / (E1 + E2/2) = 0.75.
+    assert!(close(l[0] / l[2], 0.25), "under/open = {}", l[0] / l[2]);
+    assert!(close(l[1] / l[2], 0.75), "beside/open = {}", l[1] / l[2]);
+}

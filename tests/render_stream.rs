@@ -1,0 +1,77 @@
+//! The viewer's WebSocket client against a real server on loopback: it asks for the `vemlight.v1`
+//! subprotocol, takes each text message as a LightSet, keeps the last set when the connection drops,
+//! and reconnects. (No GPU needed.)
+#![cfg(feature = "render")]
+
+use std::net::TcpListener;
+use std::time::{Duration, Instant};
+use vemlight::lightset::LightSet;
+use vemlight::render::source::{LightFeed, SUBPROTOCOL, Source};
+
+fn a_lightset(seq: u64) -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args([
+            "lights",
+            "tests/data/overcast-plaza.exr",
+            "-n",
+            "4",
+            "--no-sh",
+        ])
+        .output()
+        .unwrap();
+    let mut set: LightSet = serde_json::from_slice(&out.stdout).unwrap();
+    set.seq = seq;
+    serde_json::to_string(&set).unwrap()
+}
+
+#[test]
+// tungstenite's handshake callback returns its (large) HTTP error response by value.
+#[allow(clippy::result_large_err)]
+fn the_stream_client_reconnects_and_keeps_the_latest_set() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let messages = [a_lightset(1), a_lightset(2)];
+    let server = std::thread::spawn(move || {
+        let mut protocols = Vec::new();
+        // Two connections: each gets one set, then the server hangs up.
+        for msg in messages {
+            let (tcp, _) = listener.accept().unwrap();
+            let mut ws = tungstenite::accept_hdr(
+                tcp,
+                |req: &tungstenite::handshake::server::Request,
+                 mut resp: tungstenite::handshake::server::Response| {
+                    let asked = req
+                        .headers()
+                        .get("Sec-WebSocket-Protocol")
+                        .map(|v| v.to_str().unwrap().to_owned());
+                    protocols.push(asked);
+                    resp.headers_mut()
+                        .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
+                    Ok(resp)
+                },
+            )
+            .unwrap();
+            ws.send(tungstenite::Message::text(msg)).unwrap();
+            ws.close(None).unwrap();
+            // Let the close handshake finish.
+            let deadline = Instant::now() + Duration::from_secs(2);
+            while Instant::now() < deadline && ws.read().is_ok() {}
+        }
+        protocols
+    });
+    let url = format!("ws://127.0.0.1:{port}/v1/stream?lights=4");
+    let mut feed = LightFeed::open(&Source::parse(&url), 4).unwrap();
+    let first = feed.wait_first(Duration::from_secs(10)).unwrap();
+    assert_eq!(first.seq, 1);
+    // The second connection comes after the backoff; its set replaces the first.
+    let second = feed.wait_first(Duration::from_secs(10)).unwrap();
+    assert_eq!(second.seq, 2);
+    assert_eq!(second.lights.len(), 4);
+    let protocols = server.join().unwrap();
+    assert_eq!(protocols, vec![Some(SUBPROTOCOL.to_owned()); 2]);
+    let LightFeed::Stream(client) = &feed else {
+        unreachable!()
+    };
+    assert_eq!(client.connections(), 2);
+    drop(feed); // stops the thread promptly
+}
