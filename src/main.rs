@@ -100,6 +100,9 @@ struct ServeArgs {
     /// Default: sphere for lat-long sources, upper for fisheye sources.
     #[arg(long)]
     domain: Option<Domain>,
+    /// Extra Lloyd steps of the voronoi method (more accurate, one assignment pass each).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=8))]
+    refine: u8,
     /// Temporal filter per light id: binomial (default), sinc or none.
     #[arg(long, default_value = "binomial")]
     filter: vemlight::temporal::FilterKind,
@@ -186,6 +189,9 @@ struct LightsArgs {
     /// Leave out the L2 spherical harmonics.
     #[arg(long)]
     no_sh: bool,
+    /// Extra Lloyd steps of the voronoi method (more accurate, one assignment pass each).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=8))]
+    refine: u8,
 }
 
 /// How the input's pixels map to directions.
@@ -270,7 +276,9 @@ fn run_lights(args: LightsArgs) -> anyhow::Result<()> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let mut set = lightset_for_map(&mut Extractor::new(), &map, &req, &source);
+    let mut extractor = Extractor::new();
+    extractor.set_refine(args.refine as usize);
+    let mut set = lightset_for_map(&mut extractor, &map, &req, &source);
     set.diagnostics.timings_ms.decode = decode_ms;
     set.diagnostics.timings_ms.total += decode_ms;
     let mut out = std::io::stdout().lock();
@@ -332,6 +340,7 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
         default_lights: args.lights,
         filter,
         sh9: true,
+        refine: args.refine as usize,
         ..PipelineConfig::default()
     };
     let workers = args

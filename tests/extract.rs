@@ -349,3 +349,30 @@ fn extract_many_matches_separate_extractions() {
         }
     }
 }
+
+/// Extra Lloyd steps keep energy exact and lower the diffuse error on every map.
+#[test]
+fn refinement_steps_lower_the_error_and_keep_energy() {
+    for name in ["sunrise.exr", "interior.exr", "overcast-plaza.exr"] {
+        let map = load(name);
+        let reference = IrradianceReference::from_map(&map, Domain::Sphere);
+        let truth = map.integral(Domain::Sphere);
+        let errors: Vec<f64> = [0, 2]
+            .iter()
+            .map(|&steps| {
+                let mut ex = Extractor::new();
+                ex.set_refine(steps);
+                let out = ex.extract(&map, &opts(64, Domain::Sphere, Method::Voronoi));
+                let sum = total_irradiance(&out.lights);
+                for c in 0..3 {
+                    assert!(
+                        rel(sum[c], truth[c]) < 1e-4,
+                        "{name}: energy with {steps} steps"
+                    );
+                }
+                reference.error(&out.lights).rel_rms
+            })
+            .collect();
+        assert!(errors[1] < errors[0], "{name}: {errors:?}");
+    }
+}

@@ -28,6 +28,8 @@ pub struct PipelineConfig {
     pub max_light_counts: usize,
     /// Threads for the resampling pass, the largest part of a frame's latency.
     pub threads: usize,
+    /// Extra Lloyd steps of the voronoi method (see `Extractor::set_refine`).
+    pub refine: usize,
 }
 
 impl Default for PipelineConfig {
@@ -40,6 +42,7 @@ impl Default for PipelineConfig {
             sh9: true,
             max_light_counts: 16,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get().min(4)),
+            refine: 0,
         }
     }
 }
@@ -338,6 +341,7 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox) {
 fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, source: &str) {
     let mut extractor = Extractor::new();
     extractor.set_threads(cfg.threads);
+    extractor.set_refine(cfg.refine);
     let mut filters: HashMap<usize, TemporalFilter> = HashMap::new();
     let mut seqs: HashMap<usize, u64> = HashMap::new();
     let filter_info = FilterInfo::new(&cfg.filter, fps);

@@ -147,6 +147,8 @@ pub struct Extractor {
     median_cut: median_cut::MedianCut,
     sh: sh::ShProjector,
     threads: usize,
+    /// Extra Lloyd steps of the voronoi method (0: the one step of ALGORITHMS.md §4).
+    refine: usize,
     inverse_cdf: inverse_cdf::InverseCdf,
 }
 
@@ -180,6 +182,15 @@ impl Extractor {
         if let Some(r) = &mut self.resampler {
             r.set_threads(self.threads);
         }
+    }
+
+    /// Extra Lloyd steps for [`Method::Voronoi`]: after the first assignment, re-seed each light at
+    /// its centroid and assign again, `steps` times. Each step costs one more assignment pass. On
+    /// the shared maps (median diffuse error, N = 16 / 64 / 256 / 1024): 0 steps 3.09 / 0.59 /
+    /// 0.112 / 0.0231 %, 1 step 1.87 / 0.43 / 0.076 / 0.0173 %, 2 steps 1.53 / 0.37 / 0.072 /
+    /// 0.0156 %. Its effect on temporal stability is not measured yet, so the default stays 0.
+    pub fn set_refine(&mut self, steps: usize) {
+        self.refine = steps.min(8);
     }
 
     /// Resamples `map` into the domain square (cached table), leaving it in `self.image`.
@@ -325,6 +336,24 @@ impl Extractor {
 
     /// Default method: spherical Voronoi cells of the seeds, lights at luminance-weighted centroids.
     fn assign_spherical(&mut self, image: &DomainImage) -> Vec<Light> {
+        if self.refine == 0 {
+            return self.assign_spherical_once(image);
+        }
+        // Further Lloyd steps on the sphere: re-seed at the centroids and assign again.
+        let warped = self.seeds.clone();
+        let mut lights = self.assign_spherical_once(image);
+        for _ in 0..self.refine {
+            for (s, l) in self.seeds.iter_mut().zip(&lights) {
+                *s = Vec3::from_array(l.to_light);
+            }
+            lights = self.assign_spherical_once(image);
+        }
+        self.seeds = warped;
+        lights
+    }
+
+    /// One assignment of texels to the nearest seed and the cells' centroids.
+    fn assign_spherical_once(&mut self, image: &DomainImage) -> Vec<Light> {
         let side = image.side;
         if !self
             .grid
