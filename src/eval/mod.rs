@@ -215,17 +215,7 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
 
 /// Decodes every .exr/.hdr file of a directory, sorted by name.
 fn load_maps(dir: &Path) -> anyhow::Result<Vec<(String, EnvMap)>> {
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("cannot read {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            p.extension()
-                .and_then(|e| e.to_str())
-                .is_some_and(|e| e.eq_ignore_ascii_case("exr") || e.eq_ignore_ascii_case("hdr"))
-        })
-        .collect();
-    paths.sort();
-    paths
+    crate::capture::files::list_frames(dir)?
         .into_iter()
         .map(|p| {
             let name = p

@@ -15,6 +15,7 @@
 //! integral is 0 becomes uniform.
 
 use crate::envmap::{EnvMap, Projection};
+use crate::sampling::domain::LatLongView;
 use crate::sampling::{Domain, DomainImage};
 use glam::{DVec2, DVec3, Vec3};
 use std::f64::consts::PI;
@@ -113,10 +114,8 @@ pub struct InverseCdf {
     dist: PiecewiseConstant2D,
     /// Luminance × sin θ of the lat-long rows inside the domain.
     density: Vec<f32>,
-    /// For non-lat-long sources: the domain texel each pulled lat-long pixel reads (`u32::MAX` =
-    /// outside), and the (domain, side) it was made for.
-    pull_table: Vec<u32>,
-    pull_key: Option<(Domain, usize)>,
+    /// For non-lat-long sources: a lat-long view of the domain square.
+    view: LatLongView,
 }
 
 impl InverseCdf {
@@ -141,29 +140,19 @@ impl InverseCdf {
             Domain::Sphere => h,
             Domain::Upper => h.div_ceil(2),
         };
-        self.density.clear();
-        if map.projection == Projection::LatLong {
-            for j in 0..rows {
-                let s = (PI * (j as f64 + 0.5) / h as f64).sin() as f32;
-                self.density.extend(
-                    map.pixels[j * w..(j + 1) * w]
-                        .iter()
-                        .map(|&p| EnvMap::luminance(p) * s),
-                );
-            }
+        let pixels: &[[f32; 3]] = if map.projection == Projection::LatLong {
+            &map.pixels
         } else {
-            self.fill_pull_table(domain, w, h);
-            for j in 0..rows {
-                let s = (PI * (j as f64 + 0.5) / h as f64).sin() as f32;
-                self.density
-                    .extend(self.pull_table[j * w..(j + 1) * w].iter().map(|&t| {
-                        if t == u32::MAX {
-                            0.0
-                        } else {
-                            image.luminance[t as usize] * s
-                        }
-                    }));
-            }
+            self.view.pull(image).2
+        };
+        self.density.clear();
+        for j in 0..rows {
+            let s = (PI * (j as f64 + 0.5) / h as f64).sin() as f32;
+            self.density.extend(
+                pixels[j * w..(j + 1) * w]
+                    .iter()
+                    .map(|&p| EnvMap::luminance(p) * s),
+            );
         }
         self.dist.build(&self.density, w, rows);
         let v_scale = rows as f64 / h as f64;
@@ -177,30 +166,6 @@ impl InverseCdf {
             let (sp, cp) = phi.sin_cos();
             DVec3::new(st * sp, ct, -st * cp).as_vec3()
         }));
-    }
-
-    fn fill_pull_table(&mut self, domain: Domain, w: usize, h: usize) {
-        let side = h;
-        if self.pull_key == Some((domain, side)) {
-            return;
-        }
-        self.pull_table.clear();
-        for j in 0..h {
-            for i in 0..w {
-                let (dir, _) = Projection::LatLong.pixel(i, j, w, h).expect("lat-long");
-                self.pull_table.push(
-                    domain
-                        .dir_to_square(dir)
-                        .map(|uv| {
-                            let ti = ((uv.x * side as f64) as usize).min(side - 1);
-                            let tj = ((uv.y * side as f64) as usize).min(side - 1);
-                            (tj * side + ti) as u32
-                        })
-                        .unwrap_or(u32::MAX),
-                );
-            }
-        }
-        self.pull_key = Some((domain, side));
     }
 }
 

@@ -7,6 +7,7 @@
 
 use super::Light;
 use crate::envmap::{EnvMap, Projection};
+use crate::sampling::domain::LatLongView;
 use crate::sampling::{Domain, DomainImage};
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -26,12 +27,8 @@ struct Region {
 pub struct MedianCut {
     /// Summed-area table of luminance·Δω, (w+1)×(h+1).
     sat: Vec<f64>,
-    /// Lat-long pixels used when the source is not lat-long.
-    pulled: Vec<[f32; 3]>,
-    /// For that case: the domain texel each lat-long pixel reads (`u32::MAX` = outside), and the
-    /// (domain, side) it was made for.
-    pull_table: Vec<u32>,
-    pull_key: Option<(Domain, usize)>,
+    /// The lat-long view used when the source is not lat-long.
+    view: LatLongView,
     /// Per column (sin φ, cos φ) and per row (sin θ, cos θ, Δω) of the lat-long grid.
     columns: Vec<(f64, f64)>,
     rows: Vec<(f64, f64, f64)>,
@@ -46,37 +43,8 @@ impl MedianCut {
         let (w, h, pixels): (usize, usize, &[[f32; 3]]) = if from_source {
             (map.width, map.height, &map.pixels)
         } else {
-            // Pull a lat-long image of the domain square at about its resolution.
-            let h = image.side;
-            let w = 2 * h;
-            if self.pull_key != Some((domain, h)) {
-                self.pull_table.clear();
-                for j in 0..h {
-                    for i in 0..w {
-                        let (dir, _) = Projection::LatLong.pixel(i, j, w, h).expect("lat-long");
-                        self.pull_table.push(
-                            domain
-                                .dir_to_square(dir)
-                                .map(|uv| {
-                                    let ti = ((uv.x * h as f64) as usize).min(h - 1);
-                                    let tj = ((uv.y * h as f64) as usize).min(h - 1);
-                                    (tj * h + ti) as u32
-                                })
-                                .unwrap_or(u32::MAX),
-                        );
-                    }
-                }
-                self.pull_key = Some((domain, h));
-            }
-            self.pulled.clear();
-            self.pulled.extend(self.pull_table.iter().map(|&t| {
-                if t == u32::MAX {
-                    [0.0; 3]
-                } else {
-                    image.radiance[t as usize]
-                }
-            }));
-            (w, h, &self.pulled)
+            // A lat-long image pulled from the domain square at about its resolution.
+            self.view.pull(image)
         };
         // Rows inside the domain: all for the sphere, the upper half (pixel centre above the
         // horizon) for the hemisphere.

@@ -295,6 +295,52 @@ impl Resampler {
     }
 }
 
+/// A lat-long view (2S × S pixels) of a domain square, for the methods defined on lat-long maps
+/// (median cut, the inverse-CDF baseline) when the source is not lat-long: each lat-long pixel reads
+/// the texel its centre falls in, 0 outside the domain. The lookup table is kept per (domain, S).
+#[derive(Default)]
+pub struct LatLongView {
+    key: Option<(Domain, usize)>,
+    table: Vec<u32>,
+    pixels: Vec<[f32; 3]>,
+}
+
+impl LatLongView {
+    /// (width, height, pixels) of the view of `image`.
+    pub fn pull(&mut self, image: &DomainImage) -> (usize, usize, &[[f32; 3]]) {
+        let (domain, h) = (image.domain, image.side);
+        let w = 2 * h;
+        if self.key != Some((domain, h)) {
+            self.table.clear();
+            for j in 0..h {
+                for i in 0..w {
+                    let (dir, _) = Projection::LatLong.pixel(i, j, w, h).expect("lat-long");
+                    self.table.push(
+                        domain
+                            .dir_to_square(dir)
+                            .map(|uv| {
+                                let ti = ((uv.x * h as f64) as usize).min(h - 1);
+                                let tj = ((uv.y * h as f64) as usize).min(h - 1);
+                                (tj * h + ti) as u32
+                            })
+                            .unwrap_or(u32::MAX),
+                    );
+                }
+            }
+            self.key = Some((domain, h));
+        }
+        self.pixels.clear();
+        self.pixels.extend(self.table.iter().map(|&t| {
+            if t == u32::MAX {
+                [0.0; 3]
+            } else {
+                image.radiance[t as usize]
+            }
+        }));
+        (w, h, &self.pixels)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
