@@ -43,18 +43,7 @@ pub struct IrradianceReference {
 impl IrradianceReference {
     /// From emitters (unit direction, luminance × sr), e.g. every pixel of a map.
     pub fn from_emitters(emitters: &[(Vec3, f32)]) -> Self {
-        let normals = fibonacci_sphere(ERROR_NORMALS);
-        let truth = normals
-            .iter()
-            .map(|n| {
-                let n = n.as_vec3();
-                emitters
-                    .iter()
-                    .map(|(d, e)| (*e * n.dot(*d).max(0.0)) as f64)
-                    .sum()
-            })
-            .collect();
-        IrradianceReference { normals, truth }
+        Self::with_normals(emitters, fibonacci_sphere(ERROR_NORMALS))
     }
 
     /// Brute force over every pixel of the source map inside the domain (the test oracle).
