@@ -19,8 +19,8 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-/// The WebSocket subprotocol of the stream (DESIGN.md).
-pub const SUBPROTOCOL: &str = "vemlight.v1";
+/// The WebSocket subprotocol of the wire format (the server's constant).
+pub use crate::server::stream::SUBPROTOCOL;
 /// Where `vemlight serve` listens by default.
 pub const DEFAULT_STREAM: &str = "ws://127.0.0.1:7878/v1/stream";
 
