@@ -780,3 +780,26 @@ async fn a_source_faster_than_extraction_drops_and_counts_frames() {
         "{processed} + {dropped} != {captured}"
     );
 }
+
+/// A client that sends a huge message is disconnected; the daemon keeps serving others.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_abusive_client_is_dropped() {
+    use futures_util::SinkExt;
+    let s = start_default(20.0).await;
+    let mut bad = connect(s.addr, "", None).await;
+    next_set(&mut bad, Duration::from_secs(5)).await;
+    let _ = bad.send(Message::Binary(vec![0u8; 1 << 20].into())).await;
+    let ended = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            match bad.next().await {
+                None | Some(Err(_)) | Some(Ok(Message::Close(_))) => return true,
+                Some(Ok(_)) => continue,
+            }
+        }
+    })
+    .await
+    .unwrap_or(false);
+    assert!(ended, "the server kept a client that sent 1 MiB");
+    let mut good = connect(s.addr, "", None).await;
+    next_set(&mut good, Duration::from_secs(5)).await;
+}

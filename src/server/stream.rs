@@ -19,6 +19,9 @@ use tokio::time::{Instant, MissedTickBehavior};
 /// The WebSocket subprotocol of this wire format.
 pub const SUBPROTOCOL: &str = "vemlight.v1";
 
+/// Largest message a client may send (bytes).
+const CLIENT_MESSAGE_LIMIT: usize = 64 * 1024;
+
 /// Upgrade handler: checks the query, subscribes, hands off.
 pub async fn stream(
     ws: WebSocketUpgrade,
@@ -38,6 +41,9 @@ pub async fn stream(
     let min_interval = max_hz.map(|hz| Duration::from_secs_f64(1.0 / hz));
     Ok(ws
         .protocols([SUBPROTOCOL])
+        // Clients have nothing to send but pongs and close frames: refuse anything big.
+        .max_message_size(CLIENT_MESSAGE_LIMIT)
+        .max_frame_size(CLIENT_MESSAGE_LIMIT)
         .on_upgrade(move |socket| client_loop(socket, sub, min_interval, state)))
 }
 
