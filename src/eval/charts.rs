@@ -26,6 +26,28 @@ fn colour(method: &str) -> RGBColor {
     }
 }
 
+/// A log-log chart on an SVG file.
+type LogLogChart<'a, 'b> =
+    ChartContext<'a, SVGBackend<'b>, Cartesian2d<LogCoord<f64>, LogCoord<f64>>>;
+
+/// One method's median line with a dot at each point and its legend entry.
+fn draw_method_line(
+    chart: &mut LogLogChart<'_, '_>,
+    line: &[(f64, f64)],
+    c: RGBColor,
+    name: &str,
+) -> anyhow::Result<()> {
+    chart
+        .draw_series(LineSeries::new(line.to_vec(), c.stroke_width(2)))
+        .map_err(plot_err)?
+        .label(name)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+    chart
+        .draw_series(line.iter().map(|&p| Circle::new(p, 3, c.filled())))
+        .map_err(plot_err)?;
+    Ok(())
+}
+
 fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
     anyhow!("drawing the chart: {e:?}")
 }
@@ -99,14 +121,7 @@ pub fn error_vs_lights(
             .iter()
             .filter_map(|(n, s)| s.map(|s| (*n, s.median.max(lo))))
             .collect();
-        chart
-            .draw_series(LineSeries::new(line.clone(), c.stroke_width(2)))
-            .map_err(plot_err)?
-            .label(name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
-        chart
-            .draw_series(line.iter().map(|&p| Circle::new(p, 3, c.filled())))
-            .map_err(plot_err)?;
+        draw_method_line(&mut chart, &line, c, name)?;
     }
     if glossy.is_none()
         && let Some(s) = spread(rows, domain, SH_NAME, None, value)
@@ -191,14 +206,7 @@ pub fn error_vs_time(
                 Some((t.median, e.median.max(lo)))
             })
             .collect();
-        chart
-            .draw_series(LineSeries::new(line.clone(), c.stroke_width(2)))
-            .map_err(plot_err)?
-            .label(name)
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
-        chart
-            .draw_series(line.iter().map(|&p| Circle::new(p, 3, c.filled())))
-            .map_err(plot_err)?;
+        draw_method_line(&mut chart, &line, c, name)?;
         // Label the ends with their light counts.
         for (k, &p) in line.iter().enumerate() {
             if k == 0 || k + 1 == line.len() {
