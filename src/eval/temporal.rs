@@ -198,17 +198,7 @@ pub fn run_sequence(
 }
 
 /// E_N (luminance) at each normal from a light set.
-pub fn irradiance_at(lights: &[Light], normals: &[DVec3]) -> Vec<f64> {
-    normals
-        .iter()
-        .map(|n| {
-            lights
-                .iter()
-                .map(|l| l.luminance() * n.dot(l.dir()).max(0.0))
-                .sum()
-        })
-        .collect()
-}
+pub use crate::lights::error::irradiance_at;
 
 /// True E (luminance) at each normal, by brute force over the frame's pixels binned
 /// [`TRUTH_BIN`] × [`TRUTH_BIN`] with their first moment kept.

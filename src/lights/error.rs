@@ -33,6 +33,19 @@ pub fn fibonacci_sphere(n: usize) -> Vec<DVec3> {
         .collect()
 }
 
+/// E_N(n) = Σ_k Y_k·max(0, n·to_light_k), in luminance, at each normal (ALGORITHMS.md §8).
+pub fn irradiance_at(lights: &[Light], normals: &[DVec3]) -> Vec<f64> {
+    normals
+        .iter()
+        .map(|n| {
+            lights
+                .iter()
+                .map(|l| l.luminance() * n.dot(l.dir()).max(0.0))
+                .sum()
+        })
+        .collect()
+}
+
 /// A reference for irradiance: many small emitters (direction, luminance energy), from which E(n) is
 /// summed by brute force.
 pub struct IrradianceReference {
@@ -99,15 +112,7 @@ impl IrradianceReference {
 
     /// E_N at every reference normal from a light set.
     pub fn light_irradiance(&self, lights: &[Light]) -> Vec<f64> {
-        self.normals
-            .iter()
-            .map(|n| {
-                lights
-                    .iter()
-                    .map(|l| l.luminance() * n.dot(l.dir()).max(0.0))
-                    .sum()
-            })
-            .collect()
+        irradiance_at(lights, &self.normals)
     }
 
     /// Relative RMS and relative max error of `estimate` (one value per normal).
