@@ -155,7 +155,9 @@ pub fn lum_integral(map: &EnvMap) -> f64 {
 pub fn with_lamp(map: &EnvMap, dir: DVec3, radius_deg: f64, share: f64) -> EnvMap {
     let cos_r = radius_deg.to_radians().cos();
     let total = lum_integral(map);
+    // The pixels inside the cap, found once, and the cap's solid angle.
     let mut cap_sr = 0.0;
+    let mut cap = Vec::new();
     for j in 0..map.height {
         for i in 0..map.width {
             let (d, sr) = map
@@ -164,6 +166,7 @@ pub fn with_lamp(map: &EnvMap, dir: DVec3, radius_deg: f64, share: f64) -> EnvMa
                 .expect("lat-long");
             if d.dot(dir) >= cos_r {
                 cap_sr += sr;
+                cap.push(j * map.width + i);
             }
         }
     }
@@ -173,17 +176,9 @@ pub fn with_lamp(map: &EnvMap, dir: DVec3, radius_deg: f64, share: f64) -> EnvMa
         0.0
     };
     let mut out = map.clone();
-    for j in 0..map.height {
-        for i in 0..map.width {
-            let (d, _) = map
-                .projection
-                .pixel(i, j, map.width, map.height)
-                .expect("lat-long");
-            if d.dot(dir) >= cos_r {
-                for c in &mut out.pixels[j * map.width + i] {
-                    *c += radiance;
-                }
-            }
+    for k in cap {
+        for c in &mut out.pixels[k] {
+            *c += radiance;
         }
     }
     out
