@@ -200,6 +200,16 @@ fn main() {
             m.frames_processed.load(std::sync::atomic::Ordering::Relaxed),
             m.frames_dropped.load(std::sync::atomic::Ordering::Relaxed)
         );
+        println!(
+            "  mean stage times: resample {:.2} ms, warp {:.2} ms, assign {:.2} ms, sh {:.2} ms, \
+             filter {:.3} ms, document {:.3} ms",
+            m.stage_resample.mean_ms(),
+            m.stage_warp.mean_ms(),
+            m.stage_assign.mean_ms(),
+            m.stage_sh.mean_ms(),
+            m.stage_filter.mean_ms(),
+            m.stage_publish.mean_ms(),
+        );
         hub.shutdown();
 
         let (addr, hub) = start_server(1.0).await;

@@ -21,6 +21,11 @@ impl StageTimer {
     pub fn record_secs(&self, s: f64) {
         self.record(Duration::from_secs_f64(s.max(0.0)));
     }
+
+    /// Mean time per record in milliseconds (NaN before the first).
+    pub fn mean_ms(&self) -> f64 {
+        self.nanos.load(Relaxed) as f64 * 1e-6 / self.count.load(Relaxed) as f64
+    }
 }
 
 /// Every counter the daemon exports.
@@ -44,6 +49,8 @@ pub struct Metrics {
     pub stage_resample: StageTimer,
     pub stage_warp: StageTimer,
     pub stage_assign: StageTimer,
+    /// The L2 spherical-harmonic projection of the domain image.
+    pub stage_sh: StageTimer,
     pub stage_filter: StageTimer,
     pub stage_publish: StageTimer,
 }
@@ -143,6 +150,7 @@ impl Metrics {
             ("resample", &self.stage_resample),
             ("warp", &self.stage_warp),
             ("assign", &self.stage_assign),
+            ("sh", &self.stage_sh),
             ("filter", &self.stage_filter),
             ("publish", &self.stage_publish),
         ] {

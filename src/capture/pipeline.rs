@@ -376,7 +376,9 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             m.stage_resample.record_secs(first.timings.resample_s);
             m.stage_warp.record_secs(first.timings.warp_s);
         }
+        let t = Instant::now();
         let sh9 = if cfg.sh9 { extractor.sh9() } else { None };
+        m.stage_sh.record(t.elapsed());
         // Forget the filter state of light counts nobody asks for any more.
         filters.retain(|n, _| counts.contains(n));
         for (&n, ex) in counts.iter().zip(extractions) {

@@ -114,9 +114,9 @@ pub fn auto_side(projection: &Projection, width: usize, height: usize, domain: D
 
 /// The precomputed source-pixel → domain-texel table for one (projection, size, domain, side).
 ///
-/// The per-frame pass streams this table and the pixels once, so its size is the cost: entries
-/// exist only for pixels inside the domain, grouped in runs of consecutive pixels (a fisheye's
-/// circle is one run per row), and directions are stored pre-multiplied by the weight.
+/// The per-frame pass streams this table and the pixels once, so the table's size is the cost.
+/// Lat-long sources get a compact table (see [`LatLongTable`]); other projections one entry per
+/// pixel inside the domain.
 #[derive(Debug)]
 pub struct Resampler {
     pub projection: Projection,
@@ -124,34 +124,27 @@ pub struct Resampler {
     pub height: usize,
     pub domain: Domain,
     pub side: usize,
-    /// One entry per source pixel inside the domain, in pixel order.
-    entries: Vec<PixelEntry>,
-    /// Runs of consecutive pixels with entries: (first pixel, first entry, length).
-    runs: Vec<(u32, u32, u32)>,
+    table: Table,
     /// Per-texel accumulators (radiance, moment) side by side in one cache line, one set per
     /// thread, reused between frames.
     accum: Vec<[Vec3A; 2]>,
     threads: usize,
 }
 
-/// Deposits each pixel of `runs` into its texel: radiance × weight and luminance × weighted
-/// direction, in 4-wide f32 registers (energy exact up to f32 rounding).
-fn scatter(
-    runs: &[(u32, u32, u32)],
-    entries: &[PixelEntry],
-    pixels: &[[f32; 3]],
-    accum: &mut [[Vec3A; 2]],
-) {
-    let lum = Vec3A::new(0.2126, 0.7152, 0.0722);
-    for &(first_pixel, first_entry, len) in runs {
-        let (p0, e0, len) = (first_pixel as usize, first_entry as usize, len as usize);
-        for (e, p) in entries[e0..e0 + len].iter().zip(&pixels[p0..p0 + len]) {
-            let p = Vec3A::from_array(*p);
-            let a = &mut accum[e.texel as usize];
-            a[0] += p * e.weight;
-            a[1] += Vec3A::from_array(e.weighted_dir) * p.dot(lum);
-        }
-    }
+#[derive(Debug)]
+enum Table {
+    PerPixel(PixelTable),
+    LatLong(LatLongTable),
+}
+
+/// Any projection: one entry per source pixel inside the domain, grouped in runs of consecutive
+/// pixels (a fisheye's circle is one run per row), directions pre-multiplied by the weight.
+#[derive(Debug)]
+struct PixelTable {
+    /// One entry per source pixel inside the domain, in pixel order.
+    entries: Vec<PixelEntry>,
+    /// Runs of consecutive pixels with entries: (first pixel, first entry, length).
+    runs: Vec<(u32, u32, u32)>,
 }
 
 /// Where one source pixel goes.
@@ -165,6 +158,225 @@ struct PixelEntry {
     weighted_dir: [f32; 3],
 }
 
+/// Lat-long: a pixel's weight depends on its row only and its direction is separable,
+/// (sin θ sin φ, cos θ, −sin θ cos φ), and neighbouring pixels of a row mostly fall in the same
+/// texel (about 3 at the equator of a map with 8 pixels per texel, hundreds near the poles). So the
+/// table holds per-row and per-column factors and, per row, the spans of columns that share a
+/// texel: a span's pixels are summed in registers and deposited once. The per-frame pass reads
+/// little more than the pixels (the per-pixel table was 20 bytes a pixel, this is about 3).
+#[derive(Debug)]
+struct LatLongTable {
+    /// Per row: (weight w, w·sin θ, w·cos θ), the weight being the pixel's over the texel's solid
+    /// angle.
+    rows: Vec<[f32; 3]>,
+    /// Per column: (sin φ, cos φ).
+    cols: Vec<[f32; 2]>,
+    /// Row j's spans are `spans[row_start[j]..row_start[j + 1]]`.
+    row_start: Vec<u32>,
+    /// Consecutive columns landing in one texel, in column order; `u32::MAX` marks pixels outside
+    /// the domain.
+    spans: Vec<Span>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Span {
+    texel: u32,
+    /// One past the span's last column (it starts where the previous span of its row ends).
+    end: u32,
+}
+
+/// Where the scatter passes deposit: per-thread interleaved accumulators, or, on one thread, the
+/// image's own arrays (which saves zeroing, reading and converting a second copy of the square).
+trait Deposit {
+    fn add(&mut self, texel: usize, radiance: Vec3A, moment: Vec3A);
+}
+
+impl Deposit for [[Vec3A; 2]] {
+    #[inline(always)]
+    fn add(&mut self, texel: usize, radiance: Vec3A, moment: Vec3A) {
+        let a = &mut self[texel];
+        a[0] += radiance;
+        a[1] += moment;
+    }
+}
+
+/// (radiance, moment) arrays of a [`DomainImage`].
+struct ImageArrays<'a>(&'a mut [[f32; 3]], &'a mut [[f32; 3]]);
+
+impl Deposit for ImageArrays<'_> {
+    #[inline(always)]
+    fn add(&mut self, texel: usize, radiance: Vec3A, moment: Vec3A) {
+        let r = &mut self.0[texel];
+        *r = (Vec3A::from_array(*r) + radiance).to_array();
+        let m = &mut self.1[texel];
+        *m = (Vec3A::from_array(*m) + moment).to_array();
+    }
+}
+
+/// Deposits each pixel of `runs` into its texel: radiance × weight and luminance × weighted
+/// direction, in 4-wide f32 registers (energy exact up to f32 rounding).
+fn scatter_pixels(
+    runs: &[(u32, u32, u32)],
+    entries: &[PixelEntry],
+    pixels: &[[f32; 3]],
+    accum: &mut (impl Deposit + ?Sized),
+) {
+    for &(first_pixel, first_entry, len) in runs {
+        let (p0, e0, len) = (first_pixel as usize, first_entry as usize, len as usize);
+        for (e, p) in entries[e0..e0 + len].iter().zip(&pixels[p0..p0 + len]) {
+            let p = Vec3A::from_array(*p);
+            accum.add(
+                e.texel as usize,
+                p * e.weight,
+                Vec3A::from_array(e.weighted_dir) * p.dot(LUMINANCE),
+            );
+        }
+    }
+}
+
+/// Rec. 709 luminance weights, as [`EnvMap::luminance`].
+const LUMINANCE: Vec3A = Vec3A::new(0.2126, 0.7152, 0.0722);
+
+/// The lat-long pass over rows `rows` (see [`LatLongTable`]): per span, Σ L, Σ Y, Σ Y sin φ and
+/// Σ Y cos φ in registers, then one deposit scaled by the row's factors.
+fn scatter_latlong(
+    t: &LatLongTable,
+    rows: std::ops::Range<usize>,
+    width: usize,
+    pixels: &[[f32; 3]],
+    accum: &mut (impl Deposit + ?Sized),
+) {
+    for j in rows {
+        let [w, w_sin_theta, w_cos_theta] = t.rows[j];
+        let row = &pixels[j * width..(j + 1) * width];
+        let mut col = 0usize;
+        for span in &t.spans[t.row_start[j] as usize..t.row_start[j + 1] as usize] {
+            let end = span.end as usize;
+            if span.texel != u32::MAX {
+                let mut radiance = Vec3A::ZERO;
+                // (Σ Y sin φ, Σ Y, Σ Y cos φ)
+                let mut moment = Vec3A::ZERO;
+                for (p, &[sin_phi, cos_phi]) in row[col..end].iter().zip(&t.cols[col..end]) {
+                    let p = Vec3A::from_array(*p);
+                    radiance += p;
+                    moment += Vec3A::new(sin_phi, 1.0, cos_phi) * p.dot(LUMINANCE);
+                }
+                accum.add(
+                    span.texel as usize,
+                    radiance * w,
+                    moment * Vec3A::new(w_sin_theta, w_cos_theta, -w_sin_theta),
+                );
+            }
+            col = end;
+        }
+    }
+}
+
+impl PixelTable {
+    fn new(
+        projection: &Projection,
+        width: usize,
+        height: usize,
+        domain: Domain,
+        side: usize,
+    ) -> Self {
+        let texel_sr = domain.solid_angle() / (side * side) as f64;
+        let mut entries = Vec::with_capacity(width * height);
+        let mut runs: Vec<(u32, u32, u32)> = Vec::new();
+        for j in 0..height {
+            for i in 0..width {
+                let Some((dir, sr)) = projection.pixel(i, j, width, height) else {
+                    continue;
+                };
+                let Some(texel) = texel_of(domain, side, dir) else {
+                    continue;
+                };
+                let pixel = (j * width + i) as u32;
+                match runs.last_mut() {
+                    Some(run) if run.0 + run.2 == pixel => run.2 += 1,
+                    _ => runs.push((pixel, entries.len() as u32, 1)),
+                }
+                entries.push(PixelEntry {
+                    texel,
+                    weight: (sr / texel_sr) as f32,
+                    weighted_dir: (dir.as_vec3() * (sr / texel_sr) as f32).to_array(),
+                });
+            }
+        }
+        PixelTable { entries, runs }
+    }
+}
+
+impl LatLongTable {
+    fn new(width: usize, height: usize, domain: Domain, side: usize) -> Self {
+        let texel_sr = domain.solid_angle() / (side * side) as f64;
+        let mut rows = Vec::with_capacity(height);
+        let mut row_start = vec![0u32];
+        let mut spans: Vec<Span> = Vec::new();
+        for j in 0..height {
+            let (dir, sr) = Projection::LatLong
+                .pixel(0, j, width, height)
+                .expect("lat-long");
+            let w = sr / texel_sr;
+            let sin_theta = DVec2::new(dir.x, dir.z).length();
+            rows.push([w as f32, (w * sin_theta) as f32, (w * dir.y) as f32]);
+            let row_first = spans.len();
+            for i in 0..width {
+                let (dir, _) = Projection::LatLong
+                    .pixel(i, j, width, height)
+                    .expect("lat-long");
+                let texel = texel_of(domain, side, dir).unwrap_or(u32::MAX);
+                let in_row = spans.len() > row_first;
+                match spans.last_mut() {
+                    Some(s) if in_row && s.texel == texel => s.end += 1,
+                    _ => spans.push(Span {
+                        texel,
+                        end: i as u32 + 1,
+                    }),
+                }
+            }
+            row_start.push(spans.len() as u32);
+        }
+        let cols = (0..width)
+            .map(|i| {
+                let phi = 2.0 * std::f64::consts::PI * ((i as f64 + 0.5) / width as f64 - 0.5);
+                [phi.sin() as f32, phi.cos() as f32]
+            })
+            .collect();
+        LatLongTable {
+            rows,
+            cols,
+            row_start,
+            spans,
+        }
+    }
+}
+
+/// The texel of the domain square a direction falls in, if inside the domain.
+fn texel_of(domain: Domain, side: usize, dir: glam::DVec3) -> Option<u32> {
+    let uv = domain.dir_to_square(dir)?;
+    let ti = ((uv.x * side as f64) as usize).min(side - 1);
+    let tj = ((uv.y * side as f64) as usize).min(side - 1);
+    Some((tj * side + ti) as u32)
+}
+
+/// Splits `0..items` into `parts` consecutive ranges of about equal `cost` each.
+fn split_by_cost(items: usize, parts: usize, cost: impl Fn(usize) -> usize) -> Vec<usize> {
+    let total: usize = (0..items).map(&cost).sum();
+    let per = total.div_ceil(parts).max(1);
+    let mut bounds = vec![0];
+    let mut acc = 0;
+    for k in 0..items {
+        if acc >= per * bounds.len() && bounds.len() < parts {
+            bounds.push(k);
+        }
+        acc += cost(k);
+    }
+    bounds.resize(parts, items);
+    bounds.push(items);
+    bounds
+}
+
 impl Resampler {
     /// Builds the table; `side = None` picks [`auto_side`].
     pub fn new(
@@ -175,42 +387,29 @@ impl Resampler {
         side: Option<usize>,
     ) -> Self {
         let side = side.unwrap_or_else(|| auto_side(&projection, width, height, domain));
-        let texel_sr = domain.solid_angle() / (side * side) as f64;
-        let mut entries = Vec::with_capacity(width * height);
-        let mut runs: Vec<(u32, u32, u32)> = Vec::new();
-        for j in 0..height {
-            for i in 0..width {
-                let Some((dir, sr)) = projection.pixel(i, j, width, height) else {
-                    continue;
-                };
-                let Some(uv) = domain.dir_to_square(dir) else {
-                    continue;
-                };
-                let ti = ((uv.x * side as f64) as usize).min(side - 1);
-                let tj = ((uv.y * side as f64) as usize).min(side - 1);
-                let pixel = (j * width + i) as u32;
-                match runs.last_mut() {
-                    Some(run) if run.0 + run.2 == pixel => run.2 += 1,
-                    _ => runs.push((pixel, entries.len() as u32, 1)),
-                }
-                entries.push(PixelEntry {
-                    texel: (tj * side + ti) as u32,
-                    weight: (sr / texel_sr) as f32,
-                    weighted_dir: (dir.as_vec3() * (sr / texel_sr) as f32).to_array(),
-                });
-            }
-        }
+        let table = match projection {
+            Projection::LatLong => Table::LatLong(LatLongTable::new(width, height, domain, side)),
+            _ => Table::PerPixel(PixelTable::new(&projection, width, height, domain, side)),
+        };
         Resampler {
             projection,
             width,
             height,
             domain,
             side,
-            entries,
-            runs,
+            table,
             accum: Vec::new(),
             threads: 1,
         }
+    }
+
+    /// The same resampling through the per-pixel table whatever the projection (to check the
+    /// lat-long table against).
+    #[cfg(test)]
+    fn new_per_pixel(projection: Projection, width: usize, height: usize, domain: Domain) -> Self {
+        let mut r = Self::new(projection, width, height, domain, None);
+        r.table = Table::PerPixel(PixelTable::new(&projection, width, height, domain, r.side));
+        r
     }
 
     /// Whether this table fits a map (same projection and size).
@@ -230,50 +429,106 @@ impl Resampler {
             "map does not fit the table"
         );
         let n = self.side * self.side;
-        let threads = self.threads.clamp(1, 8).min(self.runs.len().max(1));
-        self.accum.clear();
-        self.accum.resize(n * threads, [Vec3A::ZERO; 2]);
-        if threads == 1 {
-            scatter(&self.runs, &self.entries, &map.pixels, &mut self.accum);
-        } else {
-            // Split the runs into `threads` parts of about equal pixel count, each scattering into
-            // its own accumulator, then add the accumulators up.
-            let per = self.entries.len().div_ceil(threads);
-            let mut bounds = vec![0];
-            for (k, r) in self.runs.iter().enumerate() {
-                if r.1 as usize >= per * bounds.len() {
-                    bounds.push(k);
+        let (width, pixels) = (self.width, &map.pixels[..]);
+        // Split the work into `threads` parts of about equal pixel count, each scattering into
+        // its own accumulator, then add the accumulators up.
+        let (parts, bounds) = match &self.table {
+            Table::PerPixel(t) => {
+                let parts = self.threads.clamp(1, 8).min(t.runs.len().max(1));
+                (
+                    parts,
+                    split_by_cost(t.runs.len(), parts, |k| t.runs[k].2 as usize),
+                )
+            }
+            Table::LatLong(_) => {
+                let parts = self.threads.clamp(1, 8).min(self.height.max(1));
+                (parts, split_by_cost(self.height, parts, |_| width))
+            }
+        };
+        out.domain = self.domain;
+        out.side = self.side;
+        if parts == 1 {
+            out.radiance.clear();
+            out.radiance.resize(n, [0.0; 3]);
+            out.moment.clear();
+            out.moment.resize(n, [0.0; 3]);
+            let mut arrays = ImageArrays(&mut out.radiance, &mut out.moment);
+            match &self.table {
+                Table::PerPixel(t) => scatter_pixels(&t.runs, &t.entries, pixels, &mut arrays),
+                Table::LatLong(t) => scatter_latlong(t, 0..self.height, width, pixels, &mut arrays),
+            }
+            out.luminance.clear();
+            out.luminance
+                .extend(out.radiance.iter().map(|&p| EnvMap::luminance(p)));
+            return;
+        }
+        // Sized once; every part zeroes its own accumulator in its own thread (a 2 MB memset per
+        // part at 1024×512 was a quarter of the pass when done up front).
+        self.accum.resize(n * parts, [Vec3A::ZERO; 2]);
+        let table = &self.table;
+        let work = |k: usize, acc: &mut [[Vec3A; 2]]| {
+            acc.fill([Vec3A::ZERO; 2]);
+            match table {
+                Table::PerPixel(t) => {
+                    scatter_pixels(&t.runs[bounds[k]..bounds[k + 1]], &t.entries, pixels, acc)
+                }
+                Table::LatLong(t) => {
+                    scatter_latlong(t, bounds[k]..bounds[k + 1], width, pixels, acc)
                 }
             }
-            bounds.resize(threads, self.runs.len());
-            bounds.push(self.runs.len());
-            let (runs, entries, pixels) = (&self.runs, &self.entries, &map.pixels);
-            std::thread::scope(|scope| {
-                for (k, acc) in self.accum.chunks_mut(n).enumerate() {
-                    let part = &runs[bounds[k]..bounds[k + 1]];
-                    scope.spawn(move || scatter(part, entries, pixels, acc));
-                }
-            });
-            let (first, rest) = self.accum.split_at_mut(n);
-            for other in rest.chunks(n) {
-                for (a, b) in first.iter_mut().zip(other) {
+        };
+        let mut accums = self.accum.chunks_mut(n);
+        let first = accums.next().expect("parts ≥ 1");
+        std::thread::scope(|scope| {
+            for (k, acc) in accums.enumerate() {
+                let work = &work;
+                scope.spawn(move || work(k + 1, acc));
+            }
+            work(0, first);
+        });
+
+        // Add the parts up and write the image, texel ranges split between the threads again.
+        out.radiance.resize(n, [0.0; 3]);
+        out.moment.resize(n, [0.0; 3]);
+        out.luminance.resize(n, 0.0);
+        let accum = &self.accum;
+        let merge = |first_texel: usize,
+                     radiance: &mut [[f32; 3]],
+                     moment: &mut [[f32; 3]],
+                     luminance: &mut [f32]| {
+            for (i, ((r, m), y)) in radiance
+                .iter_mut()
+                .zip(moment.iter_mut())
+                .zip(luminance.iter_mut())
+                .enumerate()
+            {
+                let t = first_texel + i;
+                let mut a = accum[t];
+                for part in 1..parts {
+                    let b = accum[part * n + t];
                     a[0] += b[0];
                     a[1] += b[1];
                 }
+                *r = a[0].to_array();
+                *m = a[1].to_array();
+                *y = EnvMap::luminance(*r);
             }
-        }
-        self.accum.truncate(n);
-        out.domain = self.domain;
-        out.side = self.side;
-        out.radiance.clear();
-        out.radiance
-            .extend(self.accum.iter().map(|a| a[0].to_array()));
-        out.moment.clear();
-        out.moment
-            .extend(self.accum.iter().map(|a| a[1].to_array()));
-        out.luminance.clear();
-        out.luminance
-            .extend(out.radiance.iter().map(|&p| EnvMap::luminance(p)));
+        };
+        let per = n.div_ceil(parts);
+        let mut ranges = out
+            .radiance
+            .chunks_mut(per)
+            .zip(out.moment.chunks_mut(per))
+            .zip(out.luminance.chunks_mut(per))
+            .enumerate();
+        let (_, ((r0, m0), y0)) = ranges.next().expect("n ≥ 1");
+        std::thread::scope(|scope| {
+            for (k, ((r, m), y)) in ranges {
+                let merge = &merge;
+                scope.spawn(move || merge(k * per, r, m, y));
+            }
+            merge(0, r0, m0, y0);
+        });
     }
 
     /// Threads used by [`resample_into`](Self::resample_into) (1 by default).
@@ -315,16 +570,8 @@ impl LatLongView {
             for j in 0..h {
                 for i in 0..w {
                     let (dir, _) = Projection::LatLong.pixel(i, j, w, h).expect("lat-long");
-                    self.table.push(
-                        domain
-                            .dir_to_square(dir)
-                            .map(|uv| {
-                                let ti = ((uv.x * h as f64) as usize).min(h - 1);
-                                let tj = ((uv.y * h as f64) as usize).min(h - 1);
-                                (tj * h + ti) as u32
-                            })
-                            .unwrap_or(u32::MAX),
-                    );
+                    self.table
+                        .push(texel_of(domain, h, dir).unwrap_or(u32::MAX));
                 }
             }
             self.key = Some((domain, h));
@@ -366,6 +613,44 @@ mod tests {
             for (x, y) in a.radiance.iter().zip(&b.radiance) {
                 for c in 0..3 {
                     assert!((x[c] - y[c]).abs() <= 1e-5 * x[c].abs().max(1.0));
+                }
+            }
+        }
+    }
+
+    /// The lat-long span table gives the per-pixel table's image (f32 summation order aside).
+    #[test]
+    fn latlong_table_matches_per_pixel_table() {
+        let (w, h) = (256, 128);
+        let map = EnvMap::from_pixels(
+            w,
+            h,
+            (0..w * h)
+                .map(|k| [(k % 13) as f32, 1.0 + (k % 5) as f32, (k / w) as f32 * 0.1])
+                .collect(),
+            Projection::LatLong,
+        )
+        .unwrap();
+        for domain in [Domain::Upper, Domain::Sphere] {
+            let a = Resampler::new_per_pixel(Projection::LatLong, w, h, domain).resample(&map);
+            let mut fast = Resampler::new(Projection::LatLong, w, h, domain, None);
+            assert!(matches!(fast.table, Table::LatLong(_)));
+            for threads in [1, 2, 3] {
+                fast.set_threads(threads);
+                let b = fast.resample(&map);
+                assert_eq!(a.side, b.side);
+                for (x, y) in a
+                    .radiance
+                    .iter()
+                    .zip(&b.radiance)
+                    .chain(a.moment.iter().zip(&b.moment))
+                {
+                    for c in 0..3 {
+                        assert!(
+                            (x[c] - y[c]).abs() <= 1e-4 * x[c].abs().max(1.0),
+                            "{domain:?} {threads} threads: {x:?} vs {y:?}"
+                        );
+                    }
                 }
             }
         }
