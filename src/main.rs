@@ -101,7 +101,7 @@ struct ServeArgs {
     #[arg(long)]
     domain: Option<Domain>,
     /// Extra Lloyd steps of the voronoi method (more accurate, one assignment pass each).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=8))]
+    #[arg(long, default_value_t = vemlight::lights::DEFAULT_REFINE as u8, value_parser = clap::value_parser!(u8).range(0..=8))]
     refine: u8,
     /// Temporal filter per light id: binomial (default), sinc or none.
     #[arg(long, default_value = "binomial")]
@@ -190,7 +190,7 @@ struct LightsArgs {
     #[arg(long)]
     no_sh: bool,
     /// Extra Lloyd steps of the voronoi method (more accurate, one assignment pass each).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=8))]
+    #[arg(long, default_value_t = vemlight::lights::DEFAULT_REFINE as u8, value_parser = clap::value_parser!(u8).range(0..=8))]
     refine: u8,
 }
 

@@ -42,7 +42,7 @@ impl Default for PipelineConfig {
             sh9: true,
             max_light_counts: 16,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get().min(4)),
-            refine: 0,
+            refine: crate::lights::DEFAULT_REFINE,
         }
     }
 }

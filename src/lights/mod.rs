@@ -133,9 +133,13 @@ pub struct StageTimings {
     pub assign_s: f64,
 }
 
+/// Lloyd steps the voronoi method takes after its first assignment unless told otherwise (see
+/// [`Extractor::set_refine`]): two, the fewest with which its diffuse error is at most median
+/// cut's at every N ≥ 16 and its glossy error at every N ≥ 64 (docs/EVALUATION.md).
+pub const DEFAULT_REFINE: usize = 2;
+
 /// Turns maps into lights, keeping every table and buffer between frames so that a video stream of
 /// same-sized maps allocates nothing per frame in the hot loop.
-#[derive(Default)]
 pub struct Extractor {
     resampler: Option<Resampler>,
     image: Option<DomainImage>,
@@ -158,6 +162,25 @@ struct CellAccum {
     energy: Vec3,
     weighted_dir: Vec3,
     texels: u32,
+}
+
+impl Default for Extractor {
+    fn default() -> Self {
+        Extractor {
+            resampler: None,
+            image: None,
+            dist: Distribution2D::default(),
+            grid: None,
+            paper_cells: HashMap::new(),
+            seeds: Vec::new(),
+            accum: Vec::new(),
+            median_cut: Default::default(),
+            sh: Default::default(),
+            threads: 1,
+            refine: DEFAULT_REFINE,
+            inverse_cdf: Default::default(),
+        }
+    }
 }
 
 impl Extractor {
@@ -184,12 +207,14 @@ impl Extractor {
         }
     }
 
-    /// Extra Lloyd steps for [`Method::Voronoi`]: after the first assignment, re-seed each light at
-    /// its centroid and assign again, `steps` times. Each step costs one more assignment pass. On
-    /// the shared maps (median diffuse error, N = 16 / 64 / 256 / 1024): 0 steps 3.09 / 0.59 /
-    /// 0.112 / 0.0231 %, 1 step 1.87 / 0.43 / 0.076 / 0.0173 %, 2 steps 1.53 / 0.37 / 0.072 /
-    /// 0.0156 %. Over time the irradiance flicker is unchanged but the lights move about twice as
-    /// much (p99 angular speed under slow yaw 5.0 → 9.5°/frame with 2 steps), so the default is 0.
+    /// Extra Lloyd steps for [`Method::Voronoi`] (default [`DEFAULT_REFINE`]): after the first
+    /// assignment, re-seed each light at its centroid and assign again, `steps` times. Each step
+    /// costs one more assignment pass. On the shared maps (median diffuse error, N = 16 / 64 / 256
+    /// / 1024; median cut 3.94 / 0.81 / 0.116 / 0.0170 %): 0 steps 3.09 / 0.59 / 0.112 /
+    /// 0.0231 %, 1 step 1.87 / 0.43 / 0.076 / 0.0173 %, 2 steps 1.53 / 0.37 / 0.072 / 0.0156 %;
+    /// glossy (Phong 128) at N = 64 / 1024: 25.6 / 1.47 %, 20.5 / 1.14 %, 18.3 / 1.03 % (median
+    /// cut 25.0 / 1.39 %). Over time the irradiance flicker is unchanged but the lights move about
+    /// twice as much (docs/EVALUATION.md, temporal table).
     pub fn set_refine(&mut self, steps: usize) {
         self.refine = steps.min(8);
     }
