@@ -133,6 +133,10 @@ pub struct StageTimings {
     pub assign_s: f64,
 }
 
+/// Smallest side of the half-resolution image the Lloyd steps run on; below it they run at full
+/// resolution.
+const MIN_COARSE_SIDE: usize = 16;
+
 /// Lloyd steps the voronoi method takes after its first assignment unless told otherwise (see
 /// [`Extractor::set_refine`]): two, the fewest with which its diffuse error is at most median
 /// cut's at every N ≥ 16 and its glossy error at every N ≥ 64 (docs/EVALUATION.md).
@@ -145,6 +149,9 @@ pub struct Extractor {
     image: Option<DomainImage>,
     dist: Distribution2D,
     grid: Option<CandidateGrid>,
+    /// The Lloyd steps' half-resolution image and its grid (see `assign_spherical`).
+    half_image: DomainImage,
+    half_grid: Option<CandidateGrid>,
     paper_cells: HashMap<usize, Vec<u16>>,
     seeds: Vec<Vec3>,
     accum: Vec<CellAccum>,
@@ -171,6 +178,8 @@ impl Default for Extractor {
             image: None,
             dist: Distribution2D::default(),
             grid: None,
+            half_image: DomainImage::empty(),
+            half_grid: None,
             paper_cells: HashMap::new(),
             seeds: Vec::new(),
             accum: Vec::new(),
@@ -363,32 +372,51 @@ impl Extractor {
     /// Default method: spherical Voronoi cells of the seeds, lights at luminance-weighted centroids.
     fn assign_spherical(&mut self, image: &DomainImage) -> Vec<Light> {
         if self.refine == 0 {
-            return self.assign_spherical_once(image);
+            return self.assign_spherical_once(image, false);
         }
-        // Further Lloyd steps on the sphere: re-seed at the centroids and assign again.
+        // Lloyd steps on the sphere: assign, re-seed at the centroids, `refine` times, then the
+        // final assignment. The steps only move the seeds, so they run on the image at half
+        // resolution (2 × 2 texels of equal area summed: the same energy and first moments), a
+        // quarter of the texels; only the final assignment, which gives the lights their energy
+        // and centroids, runs at full resolution.
+        let coarse = image.side % 2 == 0 && image.side >= 2 * MIN_COARSE_SIDE;
+        let mut half = std::mem::replace(&mut self.half_image, DomainImage::empty());
+        if coarse {
+            image.downsample_into(&mut half);
+        }
         let warped = self.seeds.clone();
-        let mut lights = self.assign_spherical_once(image);
         for _ in 0..self.refine {
+            let lights = if coarse {
+                self.assign_spherical_once(&half, true)
+            } else {
+                self.assign_spherical_once(image, false)
+            };
             for (s, l) in self.seeds.iter_mut().zip(&lights) {
                 *s = Vec3::from_array(l.to_light);
             }
-            lights = self.assign_spherical_once(image);
         }
+        let lights = self.assign_spherical_once(image, false);
         self.seeds = warped;
+        self.half_image = half;
         lights
     }
 
-    /// One assignment of texels to the nearest seed and the cells' centroids.
-    fn assign_spherical_once(&mut self, image: &DomainImage) -> Vec<Light> {
+    /// One assignment of texels to the nearest seed and the cells' centroids; `half` says which
+    /// cached grid to use (the Lloyd steps' half-resolution image has its own).
+    fn assign_spherical_once(&mut self, image: &DomainImage, half: bool) -> Vec<Light> {
         let side = image.side;
-        if !self
-            .grid
+        let slot = if half {
+            &mut self.half_grid
+        } else {
+            &mut self.grid
+        };
+        if !slot
             .as_ref()
             .is_some_and(|g| g.domain == image.domain && g.side == side)
         {
-            self.grid = Some(CandidateGrid::new(image.domain, side));
+            *slot = Some(CandidateGrid::new(image.domain, side));
         }
-        let grid = self.grid.as_mut().expect("just set");
+        let grid = slot.as_mut().expect("just set");
         grid.fill_candidates(&self.seeds);
 
         self.accum.clear();

@@ -54,6 +54,44 @@ impl DomainImage {
         s.map(|v| v * self.texel_solid_angle())
     }
 
+    /// An image with no texels, to be filled by [`downsample_into`](Self::downsample_into) or a
+    /// resampler.
+    pub fn empty() -> Self {
+        DomainImage {
+            domain: Domain::Sphere,
+            side: 0,
+            radiance: Vec::new(),
+            luminance: Vec::new(),
+            moment: Vec::new(),
+        }
+    }
+
+    /// This image at half resolution (the side must be even): each texel the mean radiance of the
+    /// 2 × 2 texels it covers (which have equal solid angles, so energy is kept exactly) and the
+    /// mean of their first moments (so directions derived from moments are kept too).
+    pub fn downsample_into(&self, out: &mut DomainImage) {
+        debug_assert!(self.side % 2 == 0);
+        let (side, half) = (self.side, self.side / 2);
+        out.domain = self.domain;
+        out.side = half;
+        let mean4 = |a: &[[f32; 3]], t: usize| {
+            let (p, q, r, s) = (a[t], a[t + 1], a[t + side], a[t + side + 1]);
+            [0, 1, 2].map(|c| 0.25 * (p[c] + q[c] + r[c] + s[c]))
+        };
+        out.radiance.clear();
+        out.moment.clear();
+        for j in 0..half {
+            for i in 0..half {
+                let t = 2 * j * side + 2 * i;
+                out.radiance.push(mean4(&self.radiance, t));
+                out.moment.push(mean4(&self.moment, t));
+            }
+        }
+        out.luminance.clear();
+        out.luminance
+            .extend(out.radiance.iter().map(|&p| EnvMap::luminance(p)));
+    }
+
     /// The centre of texel (i, j) in the unit square.
     pub fn texel_centre(side: usize, i: usize, j: usize) -> DVec2 {
         DVec2::new(
@@ -615,6 +653,35 @@ mod tests {
                     assert!((x[c] - y[c]).abs() <= 1e-5 * x[c].abs().max(1.0));
                 }
             }
+        }
+    }
+
+    /// Half resolution keeps the integral and the summed first moment (up to the 4× weight).
+    #[test]
+    fn downsampling_keeps_energy_and_moments() {
+        let map = EnvMap::from_pixels(
+            256,
+            128,
+            (0..256 * 128)
+                .map(|k| [(k % 11) as f32, (k % 3) as f32, 0.5])
+                .collect(),
+            Projection::LatLong,
+        )
+        .unwrap();
+        let img =
+            Resampler::new(Projection::LatLong, 256, 128, Domain::Sphere, Some(64)).resample(&map);
+        let mut half = DomainImage::empty();
+        img.downsample_into(&mut half);
+        assert_eq!(half.side * 2, img.side);
+        for c in 0..3 {
+            let (a, b) = (img.integral()[c], half.integral()[c]);
+            assert!((a - b).abs() <= 1e-5 * a.abs(), "channel {c}: {a} vs {b}");
+            let m = |im: &DomainImage| im.moment.iter().map(|m| m[c] as f64).sum::<f64>();
+            let (ma, mb) = (m(&img), 4.0 * m(&half));
+            assert!(
+                (ma - mb).abs() <= 1e-4 * ma.abs().max(1.0),
+                "moment {c}: {ma} vs {mb}"
+            );
         }
     }
 
