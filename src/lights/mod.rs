@@ -379,7 +379,7 @@ impl Extractor {
         // resolution (2 × 2 texels of equal area summed: the same energy and first moments), a
         // quarter of the texels; only the final assignment, which gives the lights their energy
         // and centroids, runs at full resolution.
-        let coarse = image.side % 2 == 0 && image.side >= 2 * MIN_COARSE_SIDE;
+        let coarse = image.side.is_multiple_of(2) && image.side >= 2 * MIN_COARSE_SIDE;
         let mut half = std::mem::replace(&mut self.half_image, DomainImage::empty());
         if coarse {
             image.downsample_into(&mut half);

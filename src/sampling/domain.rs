@@ -70,7 +70,7 @@ impl DomainImage {
     /// 2 × 2 texels it covers (which have equal solid angles, so energy is kept exactly) and the
     /// mean of their first moments (so directions derived from moments are kept too).
     pub fn downsample_into(&self, out: &mut DomainImage) {
-        debug_assert!(self.side % 2 == 0);
+        debug_assert!(self.side.is_multiple_of(2));
         let (side, half) = (self.side, self.side / 2);
         out.domain = self.domain;
         out.side = half;
