@@ -43,8 +43,13 @@ struct Group {
     // x: layer in t_shadow, or 0xffffffff for no shadow map (lit); members are
     // u_lights.items[y .. y + z]; w: unused.
     info: vec4<u32>,
-    // xyz: the direction the group's shadow map was drawn from (see shadow_clip).
-    axis: vec4<f32>,
+    // World → shadow texture: u = dot(u_row.xyz, p) + u_row.w, likewise v and depth. The rows are
+    // shadow.wgsl's shadow_clip for the direction the map was drawn from, mapped to texture
+    // coordinates (ShadowFit::texture_rows in src/render/shadow.rs): three loads and three dot
+    // products per lookup instead of deriving the image axes at every pixel.
+    u_row: vec4<f32>,
+    v_row: vec4<f32>,
+    depth_row: vec4<f32>,
 };
 
 // Uniform rather than storage buffers: lavapipe (Mesa 22.3) loads a storage buffer one SIMD lane at
@@ -74,33 +79,20 @@ fn vs_light(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
     return vec4<f32>(xy, 0.0, 1.0);
 }
 
-// World → shadow clip of the map drawn along `to_light`: orthographic, fitted to the casters'
-// sphere. The same function is in shadow.wgsl, and ShadowFit::project in src/render/shadow.rs
-// derives it; all three must agree. (Computing it here instead of reading a matrix saves loads,
-// which cost more than arithmetic on lavapipe.)
-fn shadow_clip(to_light: vec3<f32>, p: vec3<f32>) -> vec3<f32> {
-    let up = select(vec3<f32>(0.0, 1.0, 0.0), vec3<f32>(0.0, 0.0, 1.0), abs(to_light.y) > 0.99);
-    let x_axis = normalize(cross(up, to_light));
-    let y_axis = cross(to_light, x_axis);
-    let d = p - u_globals.fit_sphere.xyz;
-    let r = u_globals.fit_sphere.w;
-    return vec3<f32>(dot(x_axis, d) / r, dot(y_axis, d) / r, (r - dot(to_light, d)) / (r + u_globals.fit_reach.x));
-}
-
-// Fraction of the group's shadow map (layer, drawn from `axis`) that sees `world` lit (PCF).
-fn visibility(layer: u32, axis: vec3<f32>, world: vec3<f32>, n: vec3<f32>) -> f32 {
+// Fraction of group `gi`'s shadow map that sees `world` lit (PCF).
+fn visibility(gi: u32, layer: u32, world: vec3<f32>, n: vec3<f32>) -> f32 {
     if c_pcf_taps == 0u || layer == 0xffffffffu {
         return 1.0;
     }
     // Offset along the normal so a surface does not shadow itself (shadow acne).
-    let clip = shadow_clip(axis, world + n * u_globals.params.z);
-    // Compensate for the Y-flip difference between NDC and texture coordinates.
-    let uv = clip.xy * vec2<f32>(0.5, -0.5) + vec2<f32>(0.5);
+    let p = vec4<f32>(world + n * u_globals.params.z, 1.0);
+    let g = u_groups.items[gi];
+    let uv = vec2<f32>(dot(g.u_row, p), dot(g.v_row, p));
     if any(uv < vec2<f32>(0.0)) || any(uv > vec2<f32>(1.0)) {
         return 1.0; // outside the casters' footprint: nothing can block this light here
     }
     // Beyond the far plane counts as "at the far plane": behind every caster, in front of the clear.
-    let depth = clamp(clip.z, 0.0, 1.0);
+    let depth = clamp(dot(g.depth_row, p), 0.0, 1.0);
     if c_pcf_taps == 1u {
         return textureSampleCompareLevel(t_shadow, s_shadow, uv, layer, depth);
     }
@@ -162,7 +154,7 @@ fn fs_light(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
         }
         // Only lights that reach the surface pay for a shadow lookup.
         if any(sum > vec3<f32>(0.0)) {
-            radiance += sum * visibility(info.x, u_groups.items[gi].axis.xyz, world, n);
+            radiance += sum * visibility(gi, info.x, world, n);
         }
     }
     return vec4<f32>(radiance * u_globals.params.x, 1.0);

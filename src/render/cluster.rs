@@ -5,9 +5,14 @@
 //! and an axis (the direction its shadow map is drawn from).
 //!
 //! Lights closer than δ to a group's axis join it (the sun: most of a clear sky's energy sits within a
-//! few degrees, and the importance-sampled set puts many lights there). Hysteresis keeps groups from
-//! popping: a light stays in last frame's group while it is within δ_keep = 1.5 δ of that group's
-//! axis, and only joins a new group within δ. With clustering off every light is its own group.
+//! few degrees, and the importance-sampled set puts many lights there). A light dimmer than the
+//! frame's mean light may join from farther: its radius is δ · Ē/E (E its luminance, Ē the mean),
+//! at most [`MAX_RADIUS_SCALE`] δ. Moving a light's shadow by an angle α misplaces about E·α of
+//! radiance, so every light's shadow error stays within what a mean light's is at δ, and the dim
+//! lights of the sky and the ground, which carry little of the energy, stop costing a shadow map
+//! each. Hysteresis keeps groups from popping: a light stays in last frame's group while it is
+//! within 1.5 times its radius of that group's axis, and only joins a new group within its radius.
+//! With clustering off every light is its own group.
 
 use crate::lights::Light;
 use glam::Vec3;
@@ -33,13 +38,17 @@ pub struct Grouping {
     pub order: Vec<u32>,
 }
 
+/// The largest join radius of a dim light, in multiples of δ.
+pub const MAX_RADIUS_SCALE: f32 = 4.0;
+
 /// Forms groups frame after frame, remembering last frame's to apply hysteresis.
 #[derive(Debug)]
 pub struct Clusterer {
-    /// cos δ: join a group whose axis is within δ.
-    cos_join: f32,
-    /// cos δ_keep: stay in last frame's group while within δ_keep.
-    cos_keep: f32,
+    /// δ in radians (0: clustering off).
+    delta: f32,
+    /// Per light of the current frame: cos of its join radius, cos of 1.5 × that.
+    cos_join: Vec<f32>,
+    cos_keep: Vec<f32>,
     /// Light id → group key, from the last frame.
     previous: HashMap<u32, u32>,
     next_key: u32,
@@ -67,8 +76,9 @@ impl Clusterer {
     /// `delta_deg`: the join radius δ (2–5° per ALGORITHMS.md §6); 0 turns clustering off.
     pub fn new(delta_deg: f32) -> Clusterer {
         Clusterer {
-            cos_join: delta_deg.to_radians().cos(),
-            cos_keep: (1.5 * delta_deg).to_radians().cos(),
+            delta: delta_deg.max(0.0).to_radians(),
+            cos_join: Vec::new(),
+            cos_keep: Vec::new(),
             previous: HashMap::new(),
             next_key: 0,
             slots: Vec::new(),
@@ -78,7 +88,20 @@ impl Clusterer {
     }
 
     fn enabled(&self) -> bool {
-        self.cos_join < 1.0
+        self.delta > 0.0
+    }
+
+    /// Each light's join radius: δ · Ē/E, between δ and [`MAX_RADIUS_SCALE`] δ.
+    fn set_radii(&mut self, lights: &[Light]) {
+        let mean = lights.iter().map(weight).sum::<f32>() / lights.len().max(1) as f32;
+        self.cos_join.clear();
+        self.cos_keep.clear();
+        for l in lights {
+            let radius = self.delta * (mean / weight(l)).clamp(1.0, MAX_RADIUS_SCALE);
+            self.cos_join.push(radius.cos());
+            self.cos_keep
+                .push((1.5 * radius).min(std::f32::consts::PI).cos());
+        }
     }
 
     /// Groups `lights` into `out` (cleared first).
@@ -101,6 +124,7 @@ impl Clusterer {
         self.slots.clear();
         self.assigned.clear();
         self.assigned.resize(lights.len(), None);
+        self.set_radii(lights);
 
         // 1. Hysteresis: last frame's groups, rebuilt from the members that are still close.
         let mut slot_of_key: HashMap<u32, usize> = HashMap::new();
@@ -122,7 +146,7 @@ impl Clusterer {
         // Members now beyond δ_keep of their group's axis leave it (the axis is recomputed without them).
         for (i, l) in lights.iter().enumerate() {
             if let Some(s) = self.assigned[i]
-                && self.slots[s].axis().dot(dir(l)) < self.cos_keep
+                && self.slots[s].axis().dot(dir(l)) < self.cos_keep[i]
             {
                 self.assigned[i] = None;
                 self.slots[s].sum -= weight(l) * dir(l);
@@ -148,7 +172,7 @@ impl Clusterer {
                 .enumerate()
                 .filter(|(_, s)| s.members > 0)
                 .map(|(j, s)| (j, s.axis().dot(d)))
-                .filter(|&(_, c)| c >= self.cos_join)
+                .filter(|&(_, c)| c >= self.cos_join[i])
                 .max_by(|a, b| a.1.total_cmp(&b.1));
             let s = match nearest {
                 Some((j, _)) => j,
@@ -248,16 +272,17 @@ mod tests {
         let mut c = Clusterer::new(3.0);
         let mut g = Grouping::default();
         c.group(
-            &[light(0, 0.0, 30.0, 10.0), light(1, 2.0, 30.0, 1.0)],
+            &[light(0, 0.0, 30.0, 10.0), light(1, 2.0, 30.0, 8.0)],
             &mut g,
         );
         assert_eq!(g.groups.len(), 1);
         let key = g.groups[0].key;
-        // Light 1 now 4° from light 0: beyond δ, within δ_keep = 4.5° of the (power-weighted) axis.
+        // Light 1 (radius 3° × 9/8 = 3.4°) now 4° from light 0: beyond its radius, within 1.5 times
+        // it of the (power-weighted) axis.
         c.group(
             &[
                 light(0, 0.0, 30.0, 10.0),
-                light(1, 4.0 / 30f32.to_radians().cos(), 30.0, 1.0),
+                light(1, 4.0 / 30f32.to_radians().cos(), 30.0, 8.0),
             ],
             &mut g,
         );
@@ -271,11 +296,30 @@ mod tests {
         fresh.group(
             &[
                 light(0, 0.0, 30.0, 10.0),
-                light(1, 4.0 / 30f32.to_radians().cos(), 30.0, 1.0),
+                light(1, 4.0 / 30f32.to_radians().cos(), 30.0, 8.0),
             ],
             &mut g,
         );
         assert_eq!(g.groups.len(), 2);
+    }
+
+    #[test]
+    fn a_dim_light_joins_from_farther_than_a_bright_one() {
+        // Mean luminance 27.5: light 1 (10 %) gets 4 δ = 12°, light 3 (at the mean) δ = 3°.
+        let lights = [
+            light(0, 0.0, 30.0, 100.0),
+            light(1, 8.0, 30.0, 2.5),
+            light(2, 180.0, 30.0, 5.0),
+            light(3, 188.0, 30.0, 2.5),
+        ];
+        let mut g = Grouping::default();
+        Clusterer::new(3.0).group(&lights, &mut g);
+        // 1 joins 0 (7° away, within its 12°); 3 and 2 are both dim: one group.
+        assert_eq!(g.groups.len(), 2, "{g:?}");
+        // Two lights at the mean power 7° apart stay apart.
+        let even = [light(0, 0.0, 30.0, 1.0), light(1, 8.0, 30.0, 1.0)];
+        Clusterer::new(3.0).group(&even, &mut g);
+        assert_eq!(g.groups.len(), 2, "{g:?}");
     }
 
     #[test]

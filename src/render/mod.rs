@@ -263,8 +263,12 @@ impl Renderer {
             );
         }
         if self.lights_dirty || maps_drawn > 0 {
-            self.shading
-                .upload_groups(&self.queue, &self.grouping.groups, &self.group_shadows);
+            self.shading.upload_groups(
+                &self.queue,
+                &self.grouping.groups,
+                &self.group_shadows,
+                &self.shadows.fit,
+            );
         }
         self.lights_dirty = false;
         let params = ShadingParams {

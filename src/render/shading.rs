@@ -81,8 +81,9 @@ impl LightRaw {
 struct GroupRaw {
     /// layer, first, count, unused.
     info: [u32; 4],
-    /// The direction the group's shadow map was drawn from.
-    axis: [f32; 4],
+    /// World → (u, v, depth) of the group's shadow map ([`ShadowFit::texture_rows`] of the
+    /// direction it was drawn from).
+    rows: [[f32; 4]; 3],
 }
 
 /// Lights (and groups) the shading pass holds: the uniform arrays in light.wgsl are this long.
@@ -585,18 +586,19 @@ impl ShadingPass {
         }
     }
 
-    /// Uploads each group's shadow layer and matrix; call when either changes.
+    /// Uploads each group's shadow layer and projection; call when either changes.
     pub fn upload_groups(
         &mut self,
         queue: &wgpu::Queue,
         groups: &[Group],
         shadows: &[GroupShadow],
+        fit: &ShadowFit,
     ) {
         self.group_raw.clear();
         self.group_raw
             .extend(groups.iter().zip(shadows).map(|(g, s)| GroupRaw {
                 info: [s.layer, g.first, g.count, 0],
-                axis: s.axis.extend(0.0).to_array(),
+                rows: fit.texture_rows(s.axis),
             }));
         self.group_raw.truncate(MAX_LIGHTS);
         if !self.group_raw.is_empty() {

@@ -97,6 +97,29 @@ impl ShadowFit {
         )
     }
 
+    /// [`project`](Self::project) for one direction as an affine map straight to the shadow
+    /// texture: rows (u, v, depth) such that u = row·(p, 1) with u, v in texture coordinates
+    /// (x·½ + ½, −y·½ + ½). The lighting pass reads these three rows per group instead of deriving
+    /// the image axes at every pixel.
+    pub fn texture_rows(&self, to_light: Vec3) -> [[f32; 4]; 3] {
+        let up = if to_light.y.abs() > 0.99 {
+            Vec3::Z
+        } else {
+            Vec3::Y
+        };
+        let x_axis = up.cross(to_light).normalize();
+        let y_axis = to_light.cross(x_axis);
+        let (c, r) = (self.centre, self.radius);
+        let u = x_axis * (0.5 / r);
+        let v = y_axis * (-0.5 / r);
+        let d = to_light * (-1.0 / (r + self.reach));
+        [
+            u.extend(0.5 - u.dot(c)).to_array(),
+            v.extend(0.5 - v.dot(c)).to_array(),
+            d.extend(r / (r + self.reach) - d.dot(c)).to_array(),
+        ]
+    }
+
     /// The fit as the shaders read it: (centre, radius), (reach, 0, 0, 0).
     pub fn to_gpu(&self) -> [[f32; 4]; 2] {
         [
@@ -529,6 +552,34 @@ impl SceneBuffers {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn texture_rows_agree_with_project() {
+        let fit = ShadowFit {
+            centre: Vec3::new(0.3, 0.5, -0.2),
+            radius: 1.7,
+            reach: 2.9,
+        };
+        for to_light in [
+            Vec3::new(0.3, 0.8, -0.5).normalize(),
+            Vec3::Y,
+            Vec3::new(-0.9, 0.1, 0.4).normalize(),
+        ] {
+            let rows = fit.texture_rows(to_light);
+            for p in [
+                Vec3::ZERO,
+                Vec3::new(1.0, -0.4, 2.0),
+                Vec3::new(-1.5, 1.2, 0.1),
+            ] {
+                let clip = fit.project(to_light, p);
+                let expected = [0.5 + 0.5 * clip.x, 0.5 - 0.5 * clip.y, clip.z];
+                for (row, e) in rows.iter().zip(expected) {
+                    let got = Vec3::from_slice(&row[..3]).dot(p) + row[3];
+                    assert!((got - e).abs() < 1e-5, "{to_light} {p}: {got} vs {e}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn the_fit_holds_the_casters_sphere_for_any_direction() {
