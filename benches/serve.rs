@@ -33,11 +33,11 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[k]
 }
 
-async fn start_server(fps: f64) -> (std::net::SocketAddr, Arc<Hub>) {
+async fn start_server(fps: f64, cfg: PipelineConfig) -> (std::net::SocketAddr, Arc<Hub>) {
     let source = FileSource::open(std::path::Path::new(MAP), None, DEFAULT_MAX_PIXELS, fps)
         .expect("tests/data/sunrise.exr");
     let hub = Hub::new(64, 16, &source.describe());
-    pipeline::spawn(Box::new(source), hub.clone(), PipelineConfig::default()).unwrap();
+    pipeline::spawn(Box::new(source), hub.clone(), cfg).unwrap();
     let state = AppState::new(
         hub.clone(),
         None,
@@ -173,46 +173,55 @@ fn main() {
     }
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
-        let (addr, hub) = start_server(30.0).await;
-        tokio::time::sleep(Duration::from_secs(1)).await;
-        println!("end-to-end latency, frame captured → LightSet received (64 lights, 30 frames/s, loopback)");
-        for clients in [1, 100] {
-            let samples = latency(addr, clients, 8.0).await;
-            let mut total: Vec<f64> = samples.iter().map(|s| s.0).collect();
-            let mut pipeline: Vec<f64> = samples.iter().map(|s| s.1).collect();
-            total.sort_by(f64::total_cmp);
-            pipeline.sort_by(f64::total_cmp);
+        // The default pipeline, then without the Lloyd steps (`serve --refine 0`).
+        for refine in [PipelineConfig::default().refine, 0] {
+            let cfg = PipelineConfig {
+                refine,
+                ..PipelineConfig::default()
+            };
+            let (addr, hub) = start_server(30.0, cfg).await;
+            tokio::time::sleep(Duration::from_secs(1)).await;
             println!(
-                "  {clients:>3} client(s): p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {} messages \
-                 (in the pipeline, capture → document: p50 {:.2} ms, p99 {:.2} ms)",
-                percentile(&total, 0.5),
-                percentile(&total, 0.99),
-                total.last().copied().unwrap_or(f64::NAN),
-                total.len(),
-                percentile(&pipeline, 0.5),
-                percentile(&pipeline, 0.99),
+                "end-to-end latency, frame captured → LightSet received (64 lights, 30 frames/s, loopback, {refine} Lloyd steps)"
             );
+            for clients in [1, 100] {
+                let samples = latency(addr, clients, 8.0).await;
+                let mut total: Vec<f64> = samples.iter().map(|s| s.0).collect();
+                let mut pipeline: Vec<f64> = samples.iter().map(|s| s.1).collect();
+                total.sort_by(f64::total_cmp);
+                pipeline.sort_by(f64::total_cmp);
+                println!(
+                    "  {clients:>3} client(s): p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {} messages \
+                     (in the pipeline, capture → document: p50 {:.2} ms, p99 {:.2} ms)",
+                    percentile(&total, 0.5),
+                    percentile(&total, 0.99),
+                    total.last().copied().unwrap_or(f64::NAN),
+                    total.len(),
+                    percentile(&pipeline, 0.5),
+                    percentile(&pipeline, 0.99),
+                );
+            }
+            let m = &hub.metrics;
+            println!(
+                "  frames captured {}, processed {}, dropped {}",
+                m.frames_captured.load(std::sync::atomic::Ordering::Relaxed),
+                m.frames_processed.load(std::sync::atomic::Ordering::Relaxed),
+                m.frames_dropped.load(std::sync::atomic::Ordering::Relaxed)
+            );
+            println!(
+                "  mean stage times: resample {:.2} ms, warp {:.2} ms, assign {:.2} ms, sh {:.2} ms, \
+                 filter {:.3} ms, document {:.3} ms",
+                m.stage_resample.mean_ms(),
+                m.stage_warp.mean_ms(),
+                m.stage_assign.mean_ms(),
+                m.stage_sh.mean_ms(),
+                m.stage_filter.mean_ms(),
+                m.stage_publish.mean_ms(),
+            );
+            hub.shutdown();
         }
-        let m = &hub.metrics;
-        println!(
-            "  frames captured {}, processed {}, dropped {}",
-            m.frames_captured.load(std::sync::atomic::Ordering::Relaxed),
-            m.frames_processed.load(std::sync::atomic::Ordering::Relaxed),
-            m.frames_dropped.load(std::sync::atomic::Ordering::Relaxed)
-        );
-        println!(
-            "  mean stage times: resample {:.2} ms, warp {:.2} ms, assign {:.2} ms, sh {:.2} ms, \
-             filter {:.3} ms, document {:.3} ms",
-            m.stage_resample.mean_ms(),
-            m.stage_warp.mean_ms(),
-            m.stage_assign.mean_ms(),
-            m.stage_sh.mean_ms(),
-            m.stage_filter.mean_ms(),
-            m.stage_publish.mean_ms(),
-        );
-        hub.shutdown();
 
-        let (addr, hub) = start_server(1.0).await;
+        let (addr, hub) = start_server(1.0, PipelineConfig::default()).await;
         let (rps, mut times) = post_throughput(addr, 4, 10.0).await;
         println!(
             "POST /v1/lights, 1024x512 DWAB EXR, 64 lights, 4 concurrent clients: {rps:.1} requests/s, median {:.1} ms per request",
