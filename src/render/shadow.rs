@@ -12,6 +12,16 @@ use super::scene::{DrawRange, Scene, Vertex};
 use glam::Vec3;
 use std::collections::HashMap;
 
+/// The default side of the shadow maps for a frame of `width` × `height` pixels: the largest power of
+/// two not above the longer side, within 256–2048. The maps are fitted to the casters, which cover
+/// part of the frame, so this gives at least one texel per pixel on them; more texels than pixels
+/// buy no visible detail, and every lighting pass reads every map, so the texels a frame touches
+/// cost memory traffic (on lavapipe the shadow lookups wait on their gathers).
+pub fn shadow_size_for(width: u32, height: u32) -> u32 {
+    let longer = width.max(height).max(1);
+    (1u32 << (31 - longer.leading_zeros())).clamp(256, 2048)
+}
+
 /// Depth format of the shadow maps.
 pub const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// "This group has no shadow map" (more groups than the device allows layers): shaded as lit.
@@ -552,6 +562,16 @@ impl SceneBuffers {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shadow_size_follows_the_frame() {
+        assert_eq!(shadow_size_for(320, 240), 256);
+        assert_eq!(shadow_size_for(640, 480), 512);
+        assert_eq!(shadow_size_for(960, 540), 512);
+        assert_eq!(shadow_size_for(1920, 1080), 1024);
+        assert_eq!(shadow_size_for(8000, 8000), 2048);
+        assert_eq!(shadow_size_for(16, 16), 256);
+    }
 
     #[test]
     fn texture_rows_agree_with_project() {

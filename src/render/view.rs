@@ -65,9 +65,10 @@ pub struct ViewArgs {
     /// Adapt the light count (a prefix of the progressive set) to reach this frame rate.
     #[arg(long)]
     pub target_fps: Option<f32>,
-    /// Side of each shadow map, texels.
-    #[arg(long, default_value_t = 512)]
-    pub shadow_size: u32,
+    /// Side of each shadow map, texels (default: the largest power of two not above the frame's
+    /// longer side, 256–2048: 256 at 320×240, 512 at 960×540).
+    #[arg(long)]
+    pub shadow_size: Option<u32>,
     /// PCF taps per shadow lookup: 1 (bilinear 2×2) or 4 (3×3 tent); 0 turns shadows off.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(0..=4))]
     pub pcf: u32,
@@ -106,8 +107,8 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 }
 
 impl ViewArgs {
-    /// The renderer options the flags ask for.
-    pub fn options(&self) -> Options {
+    /// The renderer options the flags ask for, for frames of `size` pixels.
+    pub fn options(&self, size: (u32, u32)) -> Options {
         let mut o = if self.naive {
             Options::naive()
         } else {
@@ -121,7 +122,7 @@ impl ViewArgs {
             o.cluster_deg = self.cluster_deg.max(0.0);
             o.reuse_deg = (!self.no_reuse).then_some(self.reuse_deg.max(0.0));
         }
-        o.shadow_size = self.shadow_size.clamp(16, 8192);
+        o.shadow_size = self.shadow_size(size);
         o.pcf_taps = match self.pcf {
             0 => 0,
             1..=3 => 1,
@@ -130,6 +131,13 @@ impl ViewArgs {
         o.exposure = self.exposure;
         o.overlay = !self.no_overlay;
         o
+    }
+
+    /// `--shadow-size`, or the default for frames of `size` pixels.
+    fn shadow_size(&self, size: (u32, u32)) -> u32 {
+        self.shadow_size
+            .unwrap_or_else(|| super::shadow::shadow_size_for(size.0, size.1))
+            .clamp(16, 8192)
     }
 
     fn scene(&self) -> anyhow::Result<Scene> {
@@ -205,7 +213,7 @@ fn headless(args: &ViewArgs) -> anyhow::Result<()> {
     let scene = args.scene()?;
     let gpu = Gpu::new(Gpu::backends(args.backend))?;
     eprintln!("vemlight view: {}", gpu.describe());
-    let mut renderer = Renderer::new(&gpu, &scene, size, OUTPUT_FORMAT, args.options());
+    let mut renderer = Renderer::new(&gpu, &scene, size, OUTPUT_FORMAT, args.options(size));
     let mut lights = LightState::new(args.target_fps, args.lights);
     let first = feed.wait_first(Duration::from_secs(10))?;
     lights.set(&mut renderer, &first.lights);
@@ -312,16 +320,16 @@ fn bench(args: &ViewArgs) -> anyhow::Result<()> {
         set.lights.len(),
         args.source,
         set.source,
-        args.shadow_size
+        args.shadow_size(size)
     );
     println!(
         "{WARMUP} warm-up frames, then {frames} timed frames per path; each frame waits for the device"
     );
     let camera = camera_at(args, &scene, 0.0);
     let mut naive_opts = Options::naive();
-    naive_opts.shadow_size = args.shadow_size;
+    naive_opts.shadow_size = args.shadow_size(size);
     naive_opts.overlay = !args.no_overlay;
-    let mut opt = args.options();
+    let mut opt = args.options(size);
     if args.naive {
         bail!("--bench measures both paths; leave out --naive");
     }

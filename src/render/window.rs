@@ -42,6 +42,10 @@ struct App {
 }
 
 /// Opens the window and runs until it is closed.
+/// The window's size unless `--size` says otherwise (shadow maps are sized for it, see
+/// `shadow::shadow_size_for`; a later resize keeps them).
+const DEFAULT_SIZE: (u32, u32) = (960, 540);
+
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let feed = LightFeed::open(&Source::parse(&args.source), args.lights)?;
     let mesh = match &args.mesh {
@@ -52,7 +56,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("cannot open a window ({e}); try --headless"))?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App {
-        options: args.options(),
+        options: args.options(args.size.unwrap_or(DEFAULT_SIZE)),
         lights: LightState::new(args.target_fps, args.lights),
         scene: Scene::showcase(&mesh),
         feed,
@@ -72,7 +76,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
 
 impl App {
     fn open(&mut self, event_loop: &ActiveEventLoop) -> anyhow::Result<Live> {
-        let (w, h) = self.args.size.unwrap_or((960, 540));
+        let (w, h) = self.args.size.unwrap_or(DEFAULT_SIZE);
         let window = Arc::new(
             event_loop.create_window(
                 Window::default_attributes()
