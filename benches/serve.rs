@@ -166,9 +166,64 @@ async fn post_throughput(
     (times.len() as f64 / start.elapsed().as_secs_f64(), times)
 }
 
+/// Set in the child process that runs the clients apart from the server: "ADDR CLIENTS SECONDS".
+const CLIENTS_ENV: &str = "VEMLIGHT_BENCH_CLIENTS";
+
+/// The clients of [`latency`] in a second process (this executable again, with [`CLIENTS_ENV`]), as
+/// a deployment has them: the server's runtime then schedules only the server's tasks.
+fn latency_from_another_process(
+    addr: std::net::SocketAddr,
+    clients: usize,
+    secs: f64,
+) -> Vec<(f64, f64)> {
+    let out = std::process::Command::new(std::env::current_exe().unwrap())
+        .arg("--bench")
+        .env(CLIENTS_ENV, format!("{addr} {clients} {secs}"))
+        .output()
+        .expect("the client process");
+    assert!(out.status.success(), "client process failed");
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| {
+            let (a, b) = l.split_once(' ')?;
+            Some((a.parse().ok()?, b.parse().ok()?))
+        })
+        .collect()
+}
+
+/// Prints one latency line.
+fn report(label: &str, samples: &[(f64, f64)]) {
+    let mut total: Vec<f64> = samples.iter().map(|s| s.0).collect();
+    let mut pipeline: Vec<f64> = samples.iter().map(|s| s.1).collect();
+    total.sort_by(f64::total_cmp);
+    pipeline.sort_by(f64::total_cmp);
+    println!(
+        "  {label}: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {} messages \
+         (in the pipeline, capture → document: p50 {:.2} ms, p99 {:.2} ms)",
+        percentile(&total, 0.5),
+        percentile(&total, 0.99),
+        total.last().copied().unwrap_or(f64::NAN),
+        total.len(),
+        percentile(&pipeline, 0.5),
+        percentile(&pipeline, 0.99),
+    );
+}
+
 fn main() {
     // `cargo test` runs benches in test mode with `--bench` absent: do nothing then.
     if !std::env::args().any(|a| a == "--bench") {
+        return;
+    }
+    if let Ok(spec) = std::env::var(CLIENTS_ENV) {
+        // The client process: print "total pipeline" per message.
+        let mut it = spec.split(' ');
+        let addr = it.next().unwrap().parse().unwrap();
+        let clients = it.next().unwrap().parse().unwrap();
+        let secs = it.next().unwrap().parse().unwrap();
+        let rt = tokio::runtime::Runtime::new().unwrap();
+        for (t, p) in rt.block_on(latency(addr, clients, secs)) {
+            println!("{t} {p}");
+        }
         return;
     }
     let rt = tokio::runtime::Runtime::new().unwrap();
@@ -186,21 +241,13 @@ fn main() {
             );
             for clients in [1, 100] {
                 let samples = latency(addr, clients, 8.0).await;
-                let mut total: Vec<f64> = samples.iter().map(|s| s.0).collect();
-                let mut pipeline: Vec<f64> = samples.iter().map(|s| s.1).collect();
-                total.sort_by(f64::total_cmp);
-                pipeline.sort_by(f64::total_cmp);
-                println!(
-                    "  {clients:>3} client(s): p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {} messages \
-                     (in the pipeline, capture → document: p50 {:.2} ms, p99 {:.2} ms)",
-                    percentile(&total, 0.5),
-                    percentile(&total, 0.99),
-                    total.last().copied().unwrap_or(f64::NAN),
-                    total.len(),
-                    percentile(&pipeline, 0.5),
-                    percentile(&pipeline, 0.99),
-                );
+                report(&format!("{clients:>3} client(s)"), &samples);
             }
+            let samples =
+                tokio::task::spawn_blocking(move || latency_from_another_process(addr, 100, 8.0))
+                    .await
+                    .unwrap();
+            report("100 client(s) in a second process", &samples);
             let m = &hub.metrics;
             println!(
                 "  frames captured {}, processed {}, dropped {}",
