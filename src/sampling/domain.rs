@@ -127,7 +127,8 @@ impl DomainImage {
 }
 
 /// The side of the domain square for a source of this size: as fine as possible while every texel
-/// still receives about [`SOURCE_PIXELS_PER_TEXEL`] source pixels where the source is coarsest.
+/// still receives about [`SOURCE_PIXELS_PER_TEXEL`] source pixels where the source is coarsest,
+/// rounded down to an even number.
 pub fn auto_side(projection: &Projection, width: usize, height: usize, domain: Domain) -> usize {
     // The largest pixel solid angle: scan a cross through the image (lat-long: the equator row;
     // fisheye: the row through the circle's centre holds the extremes of a radial profile).
@@ -147,7 +148,8 @@ pub fn auto_side(projection: &Projection, width: usize, height: usize, domain: D
         return MIN_SIDE;
     }
     let side = (domain.solid_angle() / (SOURCE_PIXELS_PER_TEXEL * largest)).sqrt();
-    (side.floor() as usize).clamp(MIN_SIDE, MAX_SIDE)
+    // Even, so the voronoi method's Lloyd steps can run on the image at half resolution.
+    ((side.floor() as usize) & !1).clamp(MIN_SIDE, MAX_SIDE)
 }
 
 /// The precomputed source-pixel → domain-texel table for one (projection, size, domain, side).
