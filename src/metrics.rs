@@ -28,6 +28,102 @@ impl StageTimer {
     }
 }
 
+/// Upper bounds (seconds) of [`LatencyHistogram`]'s buckets: fine around the 5 ms delivery target,
+/// coarse beyond.
+pub const LATENCY_BUCKETS_S: [f64; 14] = [
+    0.0005, 0.001, 0.002, 0.003, 0.004, 0.005, 0.0075, 0.01, 0.02, 0.05, 0.1, 0.25, 1.0, 10.0,
+];
+
+/// A Prometheus histogram of latencies with the fixed bounds [`LATENCY_BUCKETS_S`] (and +Inf).
+#[derive(Default)]
+pub struct LatencyHistogram {
+    /// Per bucket, not cumulative; the last one is +Inf.
+    counts: [AtomicU64; LATENCY_BUCKETS_S.len() + 1],
+    nanos: AtomicU64,
+}
+
+impl LatencyHistogram {
+    pub fn observe(&self, d: Duration) {
+        let secs = d.as_secs_f64();
+        let bucket = LATENCY_BUCKETS_S
+            .iter()
+            .position(|&le| secs <= le)
+            .unwrap_or(LATENCY_BUCKETS_S.len());
+        self.counts[bucket].fetch_add(1, Relaxed);
+        self.nanos.fetch_add(d.as_nanos() as u64, Relaxed);
+    }
+
+    /// The per-bucket counts now.
+    pub fn snapshot(&self) -> HistogramCounts {
+        HistogramCounts(self.counts.each_ref().map(|c| c.load(Relaxed)))
+    }
+
+    pub fn count(&self) -> u64 {
+        self.snapshot().count()
+    }
+
+    /// The histogram's lines in the Prometheus text format (cumulative buckets, sum, count).
+    fn render(&self, s: &mut String, name: &str, help: &str) {
+        let _ = writeln!(s, "# HELP vemlight_{name} {help}");
+        let _ = writeln!(s, "# TYPE vemlight_{name} histogram");
+        let mut cumulative = 0;
+        for (k, c) in self.counts.iter().enumerate() {
+            cumulative += c.load(Relaxed);
+            let le = LATENCY_BUCKETS_S
+                .get(k)
+                .map_or("+Inf".to_string(), |b| b.to_string());
+            let _ = writeln!(s, "vemlight_{name}_bucket{{le=\"{le}\"}} {cumulative}");
+        }
+        let secs = self.nanos.load(Relaxed) as f64 * 1e-9;
+        let _ = writeln!(s, "vemlight_{name}_sum {secs}");
+        let _ = writeln!(s, "vemlight_{name}_count {cumulative}");
+    }
+}
+
+/// Per-bucket counts of a [`LatencyHistogram`] at one moment; two snapshots' difference is what
+/// happened between them.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HistogramCounts(pub [u64; LATENCY_BUCKETS_S.len() + 1]);
+
+impl HistogramCounts {
+    pub fn count(&self) -> u64 {
+        self.0.iter().sum()
+    }
+
+    /// What was observed after `earlier`.
+    pub fn since(&self, earlier: &HistogramCounts) -> HistogramCounts {
+        let mut d = *self;
+        for (a, b) in d.0.iter_mut().zip(&earlier.0) {
+            *a = a.saturating_sub(*b);
+        }
+        d
+    }
+
+    /// Fraction of observations at most `le` seconds, where `le` is one of the bucket bounds.
+    pub fn fraction_within(&self, le: f64) -> f64 {
+        let within: u64 = LATENCY_BUCKETS_S
+            .iter()
+            .zip(&self.0)
+            .filter(|(b, _)| **b <= le)
+            .map(|(_, c)| c)
+            .sum();
+        within as f64 / self.count().max(1) as f64
+    }
+
+    /// The upper bound (seconds) of the bucket that holds quantile `q` (+Inf beyond the last).
+    pub fn quantile_bound(&self, q: f64) -> f64 {
+        let target = ((q * self.count() as f64).ceil() as u64).max(1);
+        let mut seen = 0;
+        for (k, c) in self.0.iter().enumerate() {
+            seen += c;
+            if seen >= target {
+                return LATENCY_BUCKETS_S.get(k).copied().unwrap_or(f64::INFINITY);
+            }
+        }
+        f64::INFINITY
+    }
+}
+
 /// Every counter the daemon exports.
 #[derive(Default)]
 pub struct Metrics {
@@ -53,6 +149,11 @@ pub struct Metrics {
     pub stage_sh: StageTimer,
     pub stage_filter: StageTimer,
     pub stage_publish: StageTimer,
+    /// From a frame entering the pipeline to its LightSet handed to a client's socket, per
+    /// message (the temporal filter's signal delay not included). Only messages that go out as
+    /// soon as they are published count: not the set a client gets on connecting, nor those of
+    /// clients that asked for `max_hz` (they wait on purpose).
+    pub ws_delivery: LatencyHistogram,
 }
 
 impl Metrics {
@@ -162,6 +263,60 @@ impl Metrics {
                 t.count.load(Relaxed)
             );
         }
+        self.ws_delivery.render(
+            &mut s,
+            "ws_delivery_seconds",
+            "From a frame entering the pipeline to its LightSet written to a WebSocket client (clients without max_hz; not the first set after connecting).",
+        );
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn histogram_buckets_are_cumulative_and_quantiles_land_in_the_right_bucket() {
+        let h = LatencyHistogram::default();
+        for ms in [0.3, 0.8, 1.5, 1.5, 4.5, 4.9, 6.0, 30.0, 20_000.0] {
+            h.observe(Duration::from_secs_f64(ms * 1e-3));
+        }
+        // One more on a bound: `le` is inclusive.
+        h.observe(Duration::from_micros(5000));
+        let c = h.snapshot();
+        assert_eq!(c.count(), 10);
+        assert!((c.fraction_within(0.005) - 0.7).abs() < 1e-12);
+        assert_eq!(c.quantile_bound(0.4), 0.002); // the 4th of 10: 1.5 ms
+        assert_eq!(c.quantile_bound(0.5), 0.005); // the 5th: 4.5 ms
+        assert_eq!(c.quantile_bound(0.8), 0.0075);
+        assert_eq!(c.quantile_bound(0.9), 0.05);
+        assert_eq!(c.quantile_bound(1.0), f64::INFINITY);
+        let mut text = String::new();
+        h.render(&mut text, "x_seconds", "test");
+        assert!(
+            text.contains("vemlight_x_seconds_bucket{le=\"0.002\"} 4\n"),
+            "{text}"
+        );
+        assert!(
+            text.contains("vemlight_x_seconds_bucket{le=\"0.005\"} 7\n"),
+            "{text}"
+        );
+        assert!(
+            text.contains("vemlight_x_seconds_bucket{le=\"+Inf\"} 10\n"),
+            "{text}"
+        );
+        assert!(text.contains("vemlight_x_seconds_count 10\n"), "{text}");
+        // Cumulative counts never fall.
+        let counts: Vec<u64> = text
+            .lines()
+            .filter(|l| l.contains("_bucket"))
+            .map(|l| l.rsplit(' ').next().unwrap().parse().unwrap())
+            .collect();
+        assert!(counts.windows(2).all(|w| w[0] <= w[1]), "{counts:?}");
+        // What came after a snapshot.
+        h.observe(Duration::from_micros(700));
+        let d = h.snapshot().since(&c);
+        assert_eq!((d.count(), d.quantile_bound(1.0)), (1, 0.001));
     }
 }

@@ -264,13 +264,41 @@ async fn a_hundred_clients_all_receive() {
         assert_eq!(a["lights"].as_array().unwrap().len(), n);
         assert!(b["seq"].as_u64() > a["seq"].as_u64());
     }
-    let m = reqwest::get(format!("http://{}/metrics", s.addr))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let metrics = || async {
+        reqwest::get(format!("http://{}/metrics", s.addr))
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap()
+    };
+    let m = metrics().await;
     assert!(m.contains("vemlight_ws_clients 100"), "{m}");
+
+    // Delivery latency: every set a client got after its first (the one sent on connecting) is
+    // one sample. Count them once every client has gone and the counters are still.
+    drop(clients);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let m = loop {
+        let m = metrics().await;
+        if m.contains("vemlight_ws_clients 0") || Instant::now() > deadline {
+            break m;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    let value = |name: &str| -> u64 {
+        m.lines()
+            .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+            .unwrap_or_else(|| panic!("{name} in {m}"))
+    };
+    let delivered = value("vemlight_ws_delivery_seconds_count");
+    let sent = value("vemlight_ws_messages_sent_total");
+    assert!(delivered >= 100, "{delivered} timed deliveries");
+    assert_eq!(sent, delivered + 100, "one untimed set per client");
+    assert_eq!(
+        value("vemlight_ws_delivery_seconds_bucket{le=\"+Inf\"}"),
+        delivered
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -66,8 +66,10 @@ async fn client_loop(
     );
     ping.set_missed_tick_behavior(MissedTickBehavior::Delay);
     let mut next_allowed = Instant::now();
-    // The current set, if any, goes out at once.
+    // The current set, if any, goes out at once. It may be a frame old, so it is not a delivery
+    // latency sample; nor are the sets of a client that asked for `max_hz`.
     sub.rx.mark_changed();
+    let mut timed = false;
     loop {
         tokio::select! {
             changed = sub.rx.changed() => {
@@ -83,6 +85,10 @@ async fn client_loop(
                 let msg = Message::Text(set.json.clone());
                 match tokio::time::timeout(state.ws.send_timeout, tx.send(msg)).await {
                     Ok(Ok(())) => {
+                        if timed {
+                            metrics.ws_delivery.observe(set.captured_at.elapsed());
+                        }
+                        timed = min_interval.is_none();
                         Metrics::inc(&metrics.ws_messages_sent);
                         metrics.ws_bytes_sent.fetch_add(len, Relaxed);
                     }
