@@ -294,6 +294,38 @@ fn max_error_picks_the_smallest_power_of_two() {
     }
 }
 
+/// The cheap error estimate behind `max_error` and `diagnostics.estimated_error` (a 64×64 binning
+/// of the domain square) tracks the brute-force error over every pixel on every shared map: within
+/// 3 % of it at 16 and 64 lights (measured: 2 % at most), 20 % at 256. (With bins at texel centres
+/// instead of the texels' first moments it was 28 % high on sunrise.exr at 64 lights: the sun
+/// moved to a texel centre.)
+#[test]
+fn estimated_error_tracks_the_brute_force_error() {
+    let mut ex = Extractor::new();
+    for name in MAPS {
+        let map = load(name);
+        let truth = IrradianceReference::from_map(&map, Domain::Sphere);
+        for n in [16, 64, 256] {
+            let req = LightRequest {
+                lights: n,
+                domain: Some(Domain::Sphere),
+                estimate_error: true,
+                ..LightRequest::default()
+            };
+            let set = lightset_for_map(&mut ex, &map, &req, name);
+            let estimate = set.diagnostics.estimated_error.unwrap();
+            let exact = truth.error(&set.lights).rel_rms;
+            // The binning's own error is second order: it shows only when the lights' error is
+            // itself a tenth of a percent (N = 256: 0.1 % on studio.exr, estimated 15 % high).
+            let tolerance = if n <= 64 { 0.03 } else { 0.2 };
+            assert!(
+                (estimate - exact).abs() <= tolerance * exact,
+                "{name} N={n}: estimate {estimate:.5}, brute force {exact:.5}"
+            );
+        }
+    }
+}
+
 /// An all-black map gives a valid LightSet with zero energy and no NaN.
 #[test]
 fn black_map_gives_zero_energy_and_no_nan() {

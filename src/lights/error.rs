@@ -80,8 +80,9 @@ impl IrradianceReference {
     }
 
     /// From a reduced copy of the domain square: texels binned into a 64×64 grid, each bin an
-    /// emitter at its luminance-weighted mean direction (first moment kept, so the binning error is
-    /// second order). Cheap enough for every `--max-error` request.
+    /// emitter at the luminance-weighted mean direction of the source pixels in it (the texels'
+    /// first moments summed rather than their centres, so the binning does not move a small source
+    /// like the sun: the error is second order). Cheap enough for every `--max-error` request.
     pub fn from_domain_image(image: &DomainImage) -> Self {
         let side = image.side;
         let g = REDUCED_SIDE.min(side);
@@ -89,16 +90,13 @@ impl IrradianceReference {
         let sr = image.texel_solid_angle() as f32;
         for j in 0..side {
             for i in 0..side {
-                let y = image.luminance[j * side + i];
+                let t = j * side + i;
+                let y = image.luminance[t];
                 if y <= 0.0 {
                     continue;
                 }
-                let d = image
-                    .domain
-                    .square_to_dir(DomainImage::texel_centre(side, i, j))
-                    .as_vec3();
                 let b = &mut bins[(j * g / side) * g + i * g / side];
-                b.0 += d * y * sr;
+                b.0 += Vec3::from_array(image.moment[t]) * sr;
                 b.1 += y * sr;
             }
         }
