@@ -379,42 +379,15 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
     let night = std::fs::read(data_path("overcast-plaza.exr")).unwrap();
 
     // 400: bad parameters (checked before the body).
-    problem(
-        c.post(format!("{url}?lights=0"))
+    for query in ["lights=0", "method=magic", "domain=left", "projection=cube"] {
+        let r = c
+            .post(format!("{url}?{query}"))
             .body(night.clone())
             .send()
             .await
-            .unwrap(),
-        400,
-    )
-    .await;
-    problem(
-        c.post(format!("{url}?method=magic"))
-            .body(night.clone())
-            .send()
-            .await
-            .unwrap(),
-        400,
-    )
-    .await;
-    problem(
-        c.post(format!("{url}?domain=left"))
-            .body(night.clone())
-            .send()
-            .await
-            .unwrap(),
-        400,
-    )
-    .await;
-    problem(
-        c.post(format!("{url}?projection=cube"))
-            .body(night.clone())
-            .send()
-            .await
-            .unwrap(),
-        400,
-    )
-    .await;
+            .unwrap();
+        problem(r, 400).await;
+    }
 
     // 413: declared too large, and streamed past the limit without a length.
     let big = vec![0u8; 2 << 20];
