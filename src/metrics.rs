@@ -58,17 +58,13 @@ impl LatencyHistogram {
         HistogramCounts(self.counts.each_ref().map(|c| c.load(Relaxed)))
     }
 
-    pub fn count(&self) -> u64 {
-        self.snapshot().count()
-    }
-
     /// The histogram's lines in the Prometheus text format (cumulative buckets, sum, count).
     fn render(&self, s: &mut String, name: &str, help: &str) {
         let _ = writeln!(s, "# HELP vemlight_{name} {help}");
         let _ = writeln!(s, "# TYPE vemlight_{name} histogram");
         let mut cumulative = 0;
-        for (k, c) in self.counts.iter().enumerate() {
-            cumulative += c.load(Relaxed);
+        for (k, c) in self.snapshot().0.iter().enumerate() {
+            cumulative += c;
             let le = LATENCY_BUCKETS_S
                 .get(k)
                 .map_or("+Inf".to_string(), |b| b.to_string());
