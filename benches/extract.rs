@@ -9,6 +9,7 @@ use std::hint::black_box;
 use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use vemlight::eval::speed::standard_cases;
 use vemlight::lights::Extractor;
+use vemlight::sampling::{Domain, DomainImage, Resampler};
 
 fn sunrise_bytes() -> Vec<u8> {
     std::fs::read(concat!(
@@ -31,6 +32,22 @@ fn extraction(c: &mut Criterion) {
     group.finish();
 }
 
+/// The resampling pass alone (the largest part of the daemon's per-frame latency): the 1024×512
+/// lat-long map into the sphere's domain square, on one and on two threads.
+fn resampling(c: &mut Criterion) {
+    let map = EnvMap::decode(&sunrise_bytes(), None, DEFAULT_MAX_PIXELS).expect("decodes");
+    let mut group = c.benchmark_group("resample-latlong-1024x512-sphere");
+    for threads in [1, 2] {
+        let mut r = Resampler::new(map.projection, map.width, map.height, Domain::Sphere, None);
+        r.set_threads(threads);
+        let mut out = DomainImage::empty();
+        group.bench_function(format!("{threads} thread(s)"), |b| {
+            b.iter(|| r.resample_into(black_box(&map), &mut out))
+        });
+    }
+    group.finish();
+}
+
 fn decoding(c: &mut Criterion) {
     let bytes = sunrise_bytes();
     c.bench_function("decode sunrise.exr 1024x512 DWAB", |b| {
@@ -38,5 +55,5 @@ fn decoding(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, extraction, decoding);
+criterion_group!(benches, extraction, resampling, decoding);
 criterion_main!(benches);

@@ -157,6 +157,11 @@ pub fn auto_side(projection: &Projection, width: usize, height: usize, domain: D
 /// The per-frame pass streams this table and the pixels once, so the table's size is the cost.
 /// Lat-long sources get a compact table (see [`LatLongTable`]); other projections one entry per
 /// pixel inside the domain.
+///
+/// On several threads the square is cut into bands of whole texel rows with about equal pixel
+/// counts, and each thread fills one band from the pixels that land in it: the bands are disjoint
+/// slices of the output, so the threads need no accumulators of their own and no merge pass (these
+/// were a third of the pass's memory traffic at 1024×512).
 #[derive(Debug)]
 pub struct Resampler {
     pub projection: Projection,
@@ -165,9 +170,6 @@ pub struct Resampler {
     pub domain: Domain,
     pub side: usize,
     table: Table,
-    /// Per-texel accumulators (radiance, moment) side by side in one cache line, one set per
-    /// thread, reused between frames.
-    accum: Vec<[Vec3A; 2]>,
     threads: usize,
 }
 
@@ -183,8 +185,16 @@ enum Table {
 struct PixelTable {
     /// One entry per source pixel inside the domain, in pixel order.
     entries: Vec<PixelEntry>,
-    /// Runs of consecutive pixels with entries: (first pixel, first entry, length).
-    runs: Vec<(u32, u32, u32)>,
+    /// Per band of texels (one band per thread): the runs of consecutive pixels that land in it,
+    /// as (first pixel, first entry, length).
+    bands: Vec<Band<Vec<(u32, u32, u32)>>>,
+}
+
+/// One thread's share of the pass: the texels `texels` and what to read to fill them.
+#[derive(Debug)]
+struct Band<W> {
+    texels: std::ops::Range<usize>,
+    work: W,
 }
 
 /// Where one source pixel goes.
@@ -211,12 +221,23 @@ struct LatLongTable {
     rows: Vec<[f32; 3]>,
     /// Per column: (sin φ, cos φ).
     cols: Vec<[f32; 2]>,
-    /// Row j's spans are `spans[row_start[j]..row_start[j + 1]]`.
+    /// Every span (one band); kept to cut new bands from when the thread count changes.
+    all: SpanList,
+    /// Per band of texels: its spans, the others' pixels merged into skipped spans.
+    bands: Vec<Band<SpanList>>,
+}
+
+/// Spans of one or more rows: row j's are `spans[row_start[j]..row_start[j + 1]]`.
+#[derive(Clone, Debug, Default)]
+struct SpanList {
     row_start: Vec<u32>,
-    /// Consecutive columns landing in one texel, in column order; `u32::MAX` marks pixels outside
-    /// the domain.
+    /// Consecutive columns landing in one texel, in column order; [`SKIP`] marks pixels outside
+    /// the domain (or, in a band, outside the band).
     spans: Vec<Span>,
 }
+
+/// The texel of pixels that are not deposited.
+const SKIP: u32 = u32::MAX;
 
 #[derive(Clone, Copy, Debug)]
 struct Span {
@@ -225,30 +246,20 @@ struct Span {
     end: u32,
 }
 
-/// Where the scatter passes deposit: per-thread interleaved accumulators, or, on one thread, the
-/// image's own arrays (which saves zeroing, reading and converting a second copy of the square).
-trait Deposit {
-    fn add(&mut self, texel: usize, radiance: Vec3A, moment: Vec3A);
+/// Where the scatter passes deposit: a band of the image's (radiance, moment) arrays, which
+/// starts at texel `first`.
+struct ImageArrays<'a> {
+    radiance: &'a mut [[f32; 3]],
+    moment: &'a mut [[f32; 3]],
+    first: usize,
 }
 
-impl Deposit for [[Vec3A; 2]] {
+impl ImageArrays<'_> {
     #[inline(always)]
     fn add(&mut self, texel: usize, radiance: Vec3A, moment: Vec3A) {
-        let a = &mut self[texel];
-        a[0] += radiance;
-        a[1] += moment;
-    }
-}
-
-/// (radiance, moment) arrays of a [`DomainImage`].
-struct ImageArrays<'a>(&'a mut [[f32; 3]], &'a mut [[f32; 3]]);
-
-impl Deposit for ImageArrays<'_> {
-    #[inline(always)]
-    fn add(&mut self, texel: usize, radiance: Vec3A, moment: Vec3A) {
-        let r = &mut self.0[texel];
+        let r = &mut self.radiance[texel - self.first];
         *r = (Vec3A::from_array(*r) + radiance).to_array();
-        let m = &mut self.1[texel];
+        let m = &mut self.moment[texel - self.first];
         *m = (Vec3A::from_array(*m) + moment).to_array();
     }
 }
@@ -259,7 +270,7 @@ fn scatter_pixels(
     runs: &[(u32, u32, u32)],
     entries: &[PixelEntry],
     pixels: &[[f32; 3]],
-    accum: &mut (impl Deposit + ?Sized),
+    accum: &mut ImageArrays,
 ) {
     for &(first_pixel, first_entry, len) in runs {
         let (p0, e0, len) = (first_pixel as usize, first_entry as usize, len as usize);
@@ -277,22 +288,22 @@ fn scatter_pixels(
 /// Rec. 709 luminance weights, as [`EnvMap::luminance`].
 const LUMINANCE: Vec3A = Vec3A::new(0.2126, 0.7152, 0.0722);
 
-/// The lat-long pass over rows `rows` (see [`LatLongTable`]): per span, Σ L, Σ Y, Σ Y sin φ and
-/// Σ Y cos φ in registers, then one deposit scaled by the row's factors.
+/// The lat-long pass (see [`LatLongTable`]): per span, Σ L, Σ Y, Σ Y sin φ and Σ Y cos φ in
+/// registers, then one deposit scaled by the row's factors.
 fn scatter_latlong(
     t: &LatLongTable,
-    rows: std::ops::Range<usize>,
+    list: &SpanList,
     width: usize,
     pixels: &[[f32; 3]],
-    accum: &mut (impl Deposit + ?Sized),
+    accum: &mut ImageArrays,
 ) {
-    for j in rows {
+    for (j, rows) in list.row_start.windows(2).enumerate() {
         let [w, w_sin_theta, w_cos_theta] = t.rows[j];
         let row = &pixels[j * width..(j + 1) * width];
         let mut col = 0usize;
-        for span in &t.spans[t.row_start[j] as usize..t.row_start[j + 1] as usize] {
+        for span in &list.spans[rows[0] as usize..rows[1] as usize] {
             let end = span.end as usize;
-            if span.texel != u32::MAX {
+            if span.texel != SKIP {
                 let mut radiance = Vec3A::ZERO;
                 // (Σ Y sin φ, Σ Y, Σ Y cos φ)
                 let mut moment = Vec3A::ZERO;
@@ -343,7 +354,49 @@ impl PixelTable {
                 });
             }
         }
-        PixelTable { entries, runs }
+        let bands = vec![Band {
+            texels: 0..side * side,
+            work: runs,
+        }];
+        PixelTable { entries, bands }
+    }
+
+    /// Re-cuts the runs into `parts` bands of about equal pixel counts.
+    fn set_bands(&mut self, side: usize, parts: usize) {
+        let mut per_texel = vec![0usize; side * side];
+        for e in &self.entries {
+            per_texel[e.texel as usize] += 1;
+        }
+        // Every run of the current bands, back in pixel order.
+        let mut all: Vec<(u32, u32, u32)> = self
+            .bands
+            .iter()
+            .flat_map(|b| b.work.iter())
+            .copied()
+            .collect();
+        all.sort_unstable_by_key(|r| r.0);
+        self.bands = band_ranges(&per_texel, side, parts)
+            .into_iter()
+            .map(|texels| {
+                let mut runs: Vec<(u32, u32, u32)> = Vec::new();
+                for &(p0, e0, len) in &all {
+                    for k in 0..len {
+                        let texel = self.entries[(e0 + k) as usize].texel as usize;
+                        if !texels.contains(&texel) {
+                            continue;
+                        }
+                        let (pixel, entry) = (p0 + k, e0 + k);
+                        match runs.last_mut() {
+                            Some(run) if run.0 + run.2 == pixel && run.1 + run.2 == entry => {
+                                run.2 += 1
+                            }
+                            _ => runs.push((pixel, entry, 1)),
+                        }
+                    }
+                }
+                Band { texels, work: runs }
+            })
+            .collect();
     }
 }
 
@@ -351,8 +404,10 @@ impl LatLongTable {
     fn new(width: usize, height: usize, domain: Domain, side: usize) -> Self {
         let texel_sr = domain.solid_angle() / (side * side) as f64;
         let mut rows = Vec::with_capacity(height);
-        let mut row_start = vec![0u32];
-        let mut spans: Vec<Span> = Vec::new();
+        let mut all = SpanList {
+            row_start: vec![0],
+            spans: Vec::new(),
+        };
         for j in 0..height {
             let (dir, sr) = Projection::LatLong
                 .pixel(0, j, width, height)
@@ -360,22 +415,22 @@ impl LatLongTable {
             let w = sr / texel_sr;
             let sin_theta = DVec2::new(dir.x, dir.z).length();
             rows.push([w as f32, (w * sin_theta) as f32, (w * dir.y) as f32]);
-            let row_first = spans.len();
+            let row_first = all.spans.len();
             for i in 0..width {
                 let (dir, _) = Projection::LatLong
                     .pixel(i, j, width, height)
                     .expect("lat-long");
-                let texel = texel_of(domain, side, dir).unwrap_or(u32::MAX);
-                let in_row = spans.len() > row_first;
-                match spans.last_mut() {
+                let texel = texel_of(domain, side, dir).unwrap_or(SKIP);
+                let in_row = all.spans.len() > row_first;
+                match all.spans.last_mut() {
                     Some(s) if in_row && s.texel == texel => s.end += 1,
-                    _ => spans.push(Span {
+                    _ => all.spans.push(Span {
                         texel,
                         end: i as u32 + 1,
                     }),
                 }
             }
-            row_start.push(spans.len() as u32);
+            all.row_start.push(all.spans.len() as u32);
         }
         let cols = (0..width)
             .map(|i| {
@@ -383,12 +438,58 @@ impl LatLongTable {
                 [phi.sin() as f32, phi.cos() as f32]
             })
             .collect();
+        let bands = vec![Band {
+            texels: 0..side * side,
+            work: all.clone(),
+        }];
         LatLongTable {
             rows,
             cols,
-            row_start,
-            spans,
+            all,
+            bands,
         }
+    }
+
+    /// Re-cuts the spans into `parts` bands of about equal pixel counts.
+    fn set_bands(&mut self, side: usize, parts: usize) {
+        let mut per_texel = vec![0usize; side * side];
+        for row in self.all.row_start.windows(2) {
+            let mut col = 0;
+            for s in &self.all.spans[row[0] as usize..row[1] as usize] {
+                if s.texel != SKIP {
+                    per_texel[s.texel as usize] += (s.end - col) as usize;
+                }
+                col = s.end;
+            }
+        }
+        self.bands = band_ranges(&per_texel, side, parts)
+            .into_iter()
+            .map(|texels| {
+                let mut list = SpanList {
+                    row_start: vec![0],
+                    spans: Vec::new(),
+                };
+                for row in self.all.row_start.windows(2) {
+                    let row_first = list.spans.len();
+                    for s in &self.all.spans[row[0] as usize..row[1] as usize] {
+                        let texel = if texels.contains(&(s.texel as usize)) {
+                            s.texel
+                        } else {
+                            SKIP
+                        };
+                        let in_row = list.spans.len() > row_first;
+                        match list.spans.last_mut() {
+                            Some(last) if in_row && last.texel == SKIP && texel == SKIP => {
+                                last.end = s.end
+                            }
+                            _ => list.spans.push(Span { texel, end: s.end }),
+                        }
+                    }
+                    list.row_start.push(list.spans.len() as u32);
+                }
+                Band { texels, work: list }
+            })
+            .collect();
     }
 }
 
@@ -400,21 +501,61 @@ fn texel_of(domain: Domain, side: usize, dir: glam::DVec3) -> Option<u32> {
     Some((tj * side + ti) as u32)
 }
 
-/// Splits `0..items` into `parts` consecutive ranges of about equal `cost` each.
-fn split_by_cost(items: usize, parts: usize, cost: impl Fn(usize) -> usize) -> Vec<usize> {
-    let total: usize = (0..items).map(&cost).sum();
-    let per = total.div_ceil(parts).max(1);
+/// One band's share of a [`DomainImage`]: its first texel and its radiance, moment and
+/// luminance slices.
+struct BandSlice<'a>(usize, &'a mut [[f32; 3]], &'a mut [[f32; 3]], &'a mut [f32]);
+
+/// Splits `out`'s arrays into the bands' slices (sorted, disjoint `ranges`); texels outside
+/// every band (rows no pixel reaches) are zeroed here.
+fn band_slices<'a>(
+    out: &'a mut DomainImage,
+    ranges: &[std::ops::Range<usize>],
+) -> Vec<BandSlice<'a>> {
+    let (mut r, mut m, mut y) = (
+        &mut out.radiance[..],
+        &mut out.moment[..],
+        &mut out.luminance[..],
+    );
+    let mut offset = 0;
+    let mut slices = Vec::with_capacity(ranges.len());
+    for range in ranges {
+        let gap = range.start - offset;
+        r[..gap].fill([0.0; 3]);
+        m[..gap].fill([0.0; 3]);
+        y[..gap].fill(0.0);
+        let (r0, r1) = std::mem::take(&mut r)[gap..].split_at_mut(range.len());
+        let (m0, m1) = std::mem::take(&mut m)[gap..].split_at_mut(range.len());
+        let (y0, y1) = std::mem::take(&mut y)[gap..].split_at_mut(range.len());
+        slices.push(BandSlice(range.start, r0, m0, y0));
+        (r, m, y) = (r1, m1, y1);
+        offset = range.end;
+    }
+    r.fill([0.0; 3]);
+    m.fill([0.0; 3]);
+    y.fill(0.0);
+    slices
+}
+
+/// Cuts the square into at most `parts` bands of whole texel rows with about equal pixel counts
+/// (`per_texel`); empty bands are left out.
+fn band_ranges(per_texel: &[usize], side: usize, parts: usize) -> Vec<std::ops::Range<usize>> {
+    let row_cost = |r: usize| per_texel[r * side..(r + 1) * side].iter().sum::<usize>();
+    let total: usize = (0..side).map(row_cost).sum();
+    let per = total.div_ceil(parts.max(1)).max(1);
     let mut bounds = vec![0];
     let mut acc = 0;
-    for k in 0..items {
+    for r in 0..side {
         if acc >= per * bounds.len() && bounds.len() < parts {
-            bounds.push(k);
+            bounds.push(r);
         }
-        acc += cost(k);
+        acc += row_cost(r);
     }
-    bounds.resize(parts, items);
-    bounds.push(items);
+    bounds.push(side);
     bounds
+        .windows(2)
+        .filter(|b| b[1] > b[0])
+        .map(|b| b[0] * side..b[1] * side)
+        .collect()
 }
 
 impl Resampler {
@@ -438,7 +579,6 @@ impl Resampler {
             domain,
             side,
             table,
-            accum: Vec::new(),
             threads: 1,
         }
     }
@@ -470,110 +610,63 @@ impl Resampler {
         );
         let n = self.side * self.side;
         let (width, pixels) = (self.width, &map.pixels[..]);
-        // Split the work into `threads` parts of about equal pixel count, each scattering into
-        // its own accumulator, then add the accumulators up.
-        let (parts, bounds) = match &self.table {
-            Table::PerPixel(t) => {
-                let parts = self.threads.clamp(1, 8).min(t.runs.len().max(1));
-                (
-                    parts,
-                    split_by_cost(t.runs.len(), parts, |k| t.runs[k].2 as usize),
-                )
-            }
-            Table::LatLong(_) => {
-                let parts = self.threads.clamp(1, 8).min(self.height.max(1));
-                (parts, split_by_cost(self.height, parts, |_| width))
-            }
-        };
         out.domain = self.domain;
         out.side = self.side;
-        if parts == 1 {
-            out.radiance.clear();
-            out.radiance.resize(n, [0.0; 3]);
-            out.moment.clear();
-            out.moment.resize(n, [0.0; 3]);
-            let mut arrays = ImageArrays(&mut out.radiance, &mut out.moment);
-            match &self.table {
-                Table::PerPixel(t) => scatter_pixels(&t.runs, &t.entries, pixels, &mut arrays),
-                Table::LatLong(t) => scatter_latlong(t, 0..self.height, width, pixels, &mut arrays),
-            }
-            out.luminance.clear();
-            out.luminance
-                .extend(out.radiance.iter().map(|&p| EnvMap::luminance(p)));
-            return;
-        }
-        // Sized once; every part zeroes its own accumulator in its own thread (a 2 MB memset per
-        // part at 1024×512 was a quarter of the pass when done up front).
-        self.accum.resize(n * parts, [Vec3A::ZERO; 2]);
-        let table = &self.table;
-        let work = |k: usize, acc: &mut [[Vec3A; 2]]| {
-            acc.fill([Vec3A::ZERO; 2]);
-            match table {
-                Table::PerPixel(t) => {
-                    scatter_pixels(&t.runs[bounds[k]..bounds[k + 1]], &t.entries, pixels, acc)
-                }
-                Table::LatLong(t) => {
-                    scatter_latlong(t, bounds[k]..bounds[k + 1], width, pixels, acc)
-                }
-            }
-        };
-        let mut accums = self.accum.chunks_mut(n);
-        let first = accums.next().expect("parts ≥ 1");
-        std::thread::scope(|scope| {
-            for (k, acc) in accums.enumerate() {
-                let work = &work;
-                scope.spawn(move || work(k + 1, acc));
-            }
-            work(0, first);
-        });
-
-        // Add the parts up and write the image, texel ranges split between the threads again.
         out.radiance.resize(n, [0.0; 3]);
         out.moment.resize(n, [0.0; 3]);
         out.luminance.resize(n, 0.0);
-        let accum = &self.accum;
-        let merge = |first_texel: usize,
-                     radiance: &mut [[f32; 3]],
-                     moment: &mut [[f32; 3]],
-                     luminance: &mut [f32]| {
-            for (i, ((r, m), y)) in radiance
-                .iter_mut()
-                .zip(moment.iter_mut())
-                .zip(luminance.iter_mut())
-                .enumerate()
-            {
-                let t = first_texel + i;
-                let mut a = accum[t];
-                for part in 1..parts {
-                    let b = accum[part * n + t];
-                    a[0] += b[0];
-                    a[1] += b[1];
+        let table = &self.table;
+        let ranges: Vec<std::ops::Range<usize>> = match table {
+            Table::PerPixel(t) => t.bands.iter().map(|b| b.texels.clone()).collect(),
+            Table::LatLong(t) => t.bands.iter().map(|b| b.texels.clone()).collect(),
+        };
+        // Each band zeroes and fills its own slice of the image, in its own thread.
+        let fill = |band: usize, slice: BandSlice| {
+            let BandSlice(first, radiance, moment, luminance) = slice;
+            radiance.fill([0.0; 3]);
+            moment.fill([0.0; 3]);
+            let mut arrays = ImageArrays {
+                radiance,
+                moment,
+                first,
+            };
+            match table {
+                Table::PerPixel(t) => {
+                    scatter_pixels(&t.bands[band].work, &t.entries, pixels, &mut arrays)
                 }
-                *r = a[0].to_array();
-                *m = a[1].to_array();
+                Table::LatLong(t) => {
+                    scatter_latlong(t, &t.bands[band].work, width, pixels, &mut arrays)
+                }
+            }
+            for (y, r) in luminance.iter_mut().zip(arrays.radiance.iter()) {
                 *y = EnvMap::luminance(*r);
             }
         };
-        let per = n.div_ceil(parts);
-        let mut ranges = out
-            .radiance
-            .chunks_mut(per)
-            .zip(out.moment.chunks_mut(per))
-            .zip(out.luminance.chunks_mut(per))
-            .enumerate();
-        let (_, ((r0, m0), y0)) = ranges.next().expect("n ≥ 1");
+        let mut slices = band_slices(out, &ranges).into_iter();
+        let Some(first) = slices.next() else {
+            return;
+        };
         std::thread::scope(|scope| {
-            for (k, ((r, m), y)) in ranges {
-                let merge = &merge;
-                scope.spawn(move || merge(k * per, r, m, y));
+            for (band, slice) in slices.enumerate() {
+                let fill = &fill;
+                scope.spawn(move || fill(band + 1, slice));
             }
-            merge(0, r0, m0, y0);
+            fill(0, first);
         });
     }
 
-    /// Threads used by [`resample_into`](Self::resample_into) (1 by default).
+    /// Threads used by [`resample_into`](Self::resample_into) (1 by default): the square is cut
+    /// into that many bands.
     pub fn set_threads(&mut self, threads: usize) {
-        self.threads = threads.max(1);
+        let threads = threads.clamp(1, 8);
+        if threads == self.threads {
+            return;
+        }
+        self.threads = threads;
+        match &mut self.table {
+            Table::PerPixel(t) => t.set_bands(self.side, threads),
+            Table::LatLong(t) => t.set_bands(self.side, threads),
+        }
     }
 
     /// Resamples into a new image.
@@ -655,6 +748,48 @@ mod tests {
                     assert!((x[c] - y[c]).abs() <= 1e-5 * x[c].abs().max(1.0));
                 }
             }
+        }
+    }
+
+    /// Bands cut from the per-pixel table (any projection but lat-long) fill the same image.
+    #[test]
+    fn bands_of_the_per_pixel_table_give_the_same_image() {
+        let (w, h) = (96, 80);
+        let projection = Projection::Fisheye {
+            lens: crate::envmap::Lens::Equidistant,
+            fov_deg: 180.0,
+            centre: None,
+            radius: None,
+        };
+        let map = EnvMap::from_pixels(
+            w,
+            h,
+            (0..w * h)
+                .map(|k| [(k % 13) as f32, 1.0 + (k % 5) as f32, (k / w) as f32 * 0.1])
+                .collect(),
+            projection,
+        )
+        .unwrap();
+        let a = Resampler::new(projection, w, h, Domain::Upper, None).resample(&map);
+        for threads in [2, 3, 5, 1] {
+            let mut r = Resampler::new(projection, w, h, Domain::Upper, None);
+            r.set_threads(3);
+            r.set_threads(threads);
+            let b = r.resample(&map);
+            for (x, y) in a
+                .radiance
+                .iter()
+                .zip(&b.radiance)
+                .chain(a.moment.iter().zip(&b.moment))
+            {
+                for c in 0..3 {
+                    assert!(
+                        (x[c] - y[c]).abs() <= 1e-5 * x[c].abs().max(1.0),
+                        "{threads} threads: {x:?} vs {y:?}"
+                    );
+                }
+            }
+            assert_eq!(a.luminance, b.luminance);
         }
     }
 
