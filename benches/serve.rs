@@ -11,6 +11,7 @@ use futures_util::StreamExt;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use vemlight::capture::FrameSource;
 use vemlight::capture::files::FileSource;
 use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
@@ -71,7 +72,12 @@ async fn latency(addr: std::net::SocketAddr, clients: usize, secs: f64) -> Vec<(
     for _ in 0..clients {
         let url = format!("ws://{addr}/v1/stream");
         tasks.push(tokio::spawn(async move {
-            let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
+            // A LightSet is ~10 KB: tungstenite's default 128 KiB read buffer would be zeroed on
+            // every read, loading the machine being measured (README, "Writing a client").
+            let config = WebSocketConfig::default().read_buffer_size(16 * 1024);
+            let (mut ws, _) = tokio_tungstenite::connect_async_with_config(url, Some(config), true)
+                .await
+                .unwrap();
             let mut out = Vec::new();
             let start = Instant::now();
             // Skip the first message: it may be an older set sent on connect.

@@ -235,8 +235,11 @@ fn connect_and_read(
         .next()
         .context("the host does not resolve")?;
     let tcp = TcpStream::connect_timeout(&addr, Duration::from_secs(3))?;
-    let (mut ws, _response) = tungstenite::client(request, tcp)
-        .map_err(|e| anyhow::anyhow!("WebSocket handshake with {url} failed: {e}"))?;
+    // A LightSet is ~10 KB; tungstenite's default 128 KiB read buffer is zeroed on every read.
+    let config = tungstenite::protocol::WebSocketConfig::default().read_buffer_size(16 * 1024);
+    let (mut ws, _response) =
+        tungstenite::client::client_with_config(request, tcp, Some(config))
+            .map_err(|e| anyhow::anyhow!("WebSocket handshake with {url} failed: {e}"))?;
     // Short read timeouts let the thread notice `stop`; a timeout is not a dropped connection.
     ws.get_ref()
         .set_read_timeout(Some(Duration::from_millis(200)))?;
