@@ -229,7 +229,7 @@ impl InputRepairs {
 }
 
 /// A decoded environment map: linear RGB radiance, row-major from the top row, with its projection.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct EnvMap {
     pub width: usize,
     pub height: usize,
@@ -237,6 +237,27 @@ pub struct EnvMap {
     pub projection: Projection,
     /// What was clamped while loading.
     pub repairs: InputRepairs,
+}
+
+impl Clone for EnvMap {
+    fn clone(&self) -> Self {
+        EnvMap {
+            width: self.width,
+            height: self.height,
+            pixels: self.pixels.clone(),
+            projection: self.projection,
+            repairs: self.repairs,
+        }
+    }
+
+    /// Reuses `self`'s pixel buffer (the derived `clone_from` allocates a new one).
+    fn clone_from(&mut self, source: &Self) {
+        self.width = source.width;
+        self.height = source.height;
+        self.pixels.clone_from(&source.pixels);
+        self.projection = source.projection;
+        self.repairs = source.repairs;
+    }
 }
 
 impl EnvMap {
