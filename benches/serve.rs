@@ -173,7 +173,8 @@ async fn post_throughput(
     (times.len() as f64 / start.elapsed().as_secs_f64(), times)
 }
 
-/// Set in the child process that runs the clients apart from the server: "ADDR CLIENTS SECONDS".
+/// Set in the child process that runs the clients apart from the server:
+/// "ADDR CLIENTS SECONDS THREADS" (THREADS 1: a current-thread runtime; 0: one worker per core).
 const CLIENTS_ENV: &str = "VEMLIGHT_BENCH_CLIENTS";
 
 /// The clients of [`latency`] in a second process (this executable again, with [`CLIENTS_ENV`]), as
@@ -182,10 +183,11 @@ fn latency_from_another_process(
     addr: std::net::SocketAddr,
     clients: usize,
     secs: f64,
+    threads: usize,
 ) -> Vec<(f64, f64)> {
     let out = std::process::Command::new(std::env::current_exe().unwrap())
         .arg("--bench")
-        .env(CLIENTS_ENV, format!("{addr} {clients} {secs}"))
+        .env(CLIENTS_ENV, format!("{addr} {clients} {secs} {threads}"))
         .output()
         .expect("the client process");
     assert!(out.status.success(), "client process failed");
@@ -233,7 +235,13 @@ fn main() {
         let addr = it.next().unwrap().parse().unwrap();
         let clients = it.next().unwrap().parse().unwrap();
         let secs = it.next().unwrap().parse().unwrap();
-        let rt = tokio::runtime::Runtime::new().unwrap();
+        let rt = match it.next() {
+            Some("1") => tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+                .unwrap(),
+            _ => tokio::runtime::Runtime::new().unwrap(),
+        };
         for (t, p) in rt.block_on(latency(addr, clients, secs)) {
             println!("{t} {p}");
         }
@@ -258,13 +266,19 @@ fn main() {
                 let server = hub.metrics.ws_delivery.snapshot().since(&before);
                 report(&format!("{clients:>3} client(s)"), &samples, &server);
             }
-            let before = hub.metrics.ws_delivery.snapshot();
-            let samples =
-                tokio::task::spawn_blocking(move || latency_from_another_process(addr, 100, 8.0))
-                    .await
-                    .unwrap();
-            let server = hub.metrics.ws_delivery.snapshot().since(&before);
-            report("100 client(s) in a second process", &samples, &server);
+            for (threads, label) in [
+                (0, "100 client(s) in a second process"),
+                (1, "100 client(s) in a second process, one thread"),
+            ] {
+                let before = hub.metrics.ws_delivery.snapshot();
+                let samples = tokio::task::spawn_blocking(move || {
+                    latency_from_another_process(addr, 100, 8.0, threads)
+                })
+                .await
+                .unwrap();
+                let server = hub.metrics.ws_delivery.snapshot().since(&before);
+                report(label, &samples, &server);
+            }
             let m = &hub.metrics;
             println!(
                 "  frames captured {}, processed {}, dropped {}",
