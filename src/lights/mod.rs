@@ -137,6 +137,11 @@ pub struct StageTimings {
 /// resolution.
 const MIN_COARSE_SIDE: usize = 16;
 
+/// Whether `image` has a half-resolution copy (even side, at least twice [`MIN_COARSE_SIDE`]).
+fn has_coarse_copy(image: &DomainImage) -> bool {
+    image.side.is_multiple_of(2) && image.side >= 2 * MIN_COARSE_SIDE
+}
+
 /// Lloyd steps the voronoi method takes after its first assignment unless told otherwise (see
 /// [`Extractor::set_refine`]): two, the fewest with which its diffuse error is at most median
 /// cut's at every N ≥ 16 and its glossy error at every N ≥ 64 (docs/EVALUATION.md).
@@ -151,12 +156,13 @@ pub struct Extractor {
     grid: Option<CandidateGrid>,
     /// The Lloyd steps' half-resolution image and its grid (see `assign_spherical`).
     half_image: DomainImage,
+    /// Whether `half_image` is the half-resolution copy of the current `image`.
+    half_is_current: bool,
     half_grid: Option<CandidateGrid>,
     paper_cells: HashMap<usize, Vec<u16>>,
     seeds: Vec<Vec3>,
     accum: Vec<CellAccum>,
     median_cut: median_cut::MedianCut,
-    sh: sh::ShProjector,
     threads: usize,
     /// Extra Lloyd steps of the voronoi method (0: the one step of ALGORITHMS.md §4).
     refine: usize,
@@ -179,12 +185,12 @@ impl Default for Extractor {
             dist: Distribution2D::default(),
             grid: None,
             half_image: DomainImage::empty(),
+            half_is_current: false,
             half_grid: None,
             paper_cells: HashMap::new(),
             seeds: Vec::new(),
             accum: Vec::new(),
             median_cut: Default::default(),
-            sh: Default::default(),
             threads: 1,
             refine: DEFAULT_REFINE,
             inverse_cdf: Default::default(),
@@ -202,10 +208,21 @@ impl Extractor {
         self.image.as_ref()
     }
 
-    /// L2 radiance SH of the last resampled frame (see [`sh`]), as the 27 floats of `sh9`.
+    /// L2 radiance SH of the last resampled frame (see [`sh`]), as the 27 floats of `sh9`:
+    /// projected at the texels' moment directions on the half-resolution image (the one the
+    /// Lloyd steps already made, else made here), see [`sh::project_at_moments`].
     pub fn sh9(&mut self) -> Option<Vec<f32>> {
         let image = self.image.as_ref()?;
-        Some(self.sh.project(image).iter().map(|&c| c as f32).collect())
+        let coeffs = if has_coarse_copy(image) {
+            if !self.half_is_current {
+                image.downsample_into(&mut self.half_image);
+                self.half_is_current = true;
+            }
+            sh::project_at_moments(&self.half_image)
+        } else {
+            sh::project_at_moments(image)
+        };
+        Some(coeffs.iter().map(|&c| c as f32).collect())
     }
 
     /// Threads for the resampling pass (the rest is single-threaded); default 1.
@@ -240,6 +257,7 @@ impl Extractor {
             self.resampler = Some(r);
         }
         let r = self.resampler.as_mut().expect("just set");
+        self.half_is_current = false;
         match &mut self.image {
             Some(img) => r.resample_into(map, img),
             None => self.image = Some(r.resample(map)),
@@ -379,10 +397,11 @@ impl Extractor {
         // resolution (2 × 2 texels of equal area summed: the same energy and first moments), a
         // quarter of the texels; only the final assignment, which gives the lights their energy
         // and centroids, runs at full resolution.
-        let coarse = image.side.is_multiple_of(2) && image.side >= 2 * MIN_COARSE_SIDE;
+        let coarse = has_coarse_copy(image);
         let mut half = std::mem::replace(&mut self.half_image, DomainImage::empty());
-        if coarse {
+        if coarse && !self.half_is_current {
             image.downsample_into(&mut half);
+            self.half_is_current = true;
         }
         let warped = self.seeds.clone();
         for _ in 0..self.refine {

@@ -76,6 +76,49 @@ impl ShProjector {
     }
 }
 
+/// Radiance coefficients with each texel's basis values taken at its first-moment direction (its
+/// luminance-weighted mean direction, which the resampling keeps exactly) instead of its centre.
+/// Against a per-pixel projection of the source, over the eight shared maps, this on the
+/// half-resolution square is 1.2e-4 – 9.8e-4 off (relative L2 over the 27 coefficients) where
+/// [`project`] on the full square is 1.6e-4 – 1.3e-2 off: a sun's texel centre can be half a texel
+/// from the sun (sunrise.exr 3.9e-4 vs 4.9e-3), while on the smooth studio and apartment maps the
+/// coarser square loses a little (3.5e-4 vs 1.7e-4, 9.8e-4 vs 1.6e-4). So `sh9` projects the Lloyd
+/// steps' half-resolution image: a quarter of the texels, and a worst case 13× smaller.
+pub fn project_at_moments(image: &DomainImage) -> [f64; 27] {
+    let side = image.side;
+    let sr = image.texel_solid_angle() as f32;
+    let mut out = [0.0f64; 27];
+    for (j, (rad_row, moment_row)) in image
+        .radiance
+        .chunks(side)
+        .zip(image.moment.chunks(side))
+        .enumerate()
+    {
+        // Sum a row in f32, then into f64: a row is short enough for f32.
+        let mut acc = [0.0f32; 27];
+        for (i, (p, m)) in rad_row.iter().zip(moment_row).enumerate() {
+            let d = glam::Vec3::from_array(*m)
+                .try_normalize()
+                .unwrap_or_else(|| {
+                    image
+                        .domain
+                        .square_to_dir(DomainImage::texel_centre(side, i, j))
+                        .as_vec3()
+                });
+            let y = basis(d.as_dvec3()).map(|y| y as f32 * sr);
+            for k in 0..9 {
+                for c in 0..3 {
+                    acc[3 * k + c] += p[c] * y[k];
+                }
+            }
+        }
+        for (o, a) in out.iter_mut().zip(acc) {
+            *o += a as f64;
+        }
+    }
+    out
+}
+
 /// Irradiance at normal `n` from radiance coefficients (Ramamoorthi & Hanrahan 2001):
 /// E(n) = Σ Â_l L_lm Y_lm(n), Â₀ = π, Â₁ = 2π/3, Â₂ = π/4.
 pub fn irradiance(coeffs: &[f64; 27], n: DVec3) -> [f64; 3] {
