@@ -7,7 +7,7 @@
 //! Y₂₂ = 0.546274·(x² − y²). Coefficients are radiance: L_lm = ∫ L(ω) Y_lm(ω) dω, RGB interleaved.
 
 use crate::sampling::{Domain, DomainImage};
-use glam::DVec3;
+use glam::{DVec3, Vec3, Vec3A};
 use std::f64::consts::PI;
 
 /// The nine basis functions at a unit direction.
@@ -83,7 +83,8 @@ impl ShProjector {
 /// [`project`] on the full square is 1.6e-4 – 1.3e-2 off: a sun's texel centre can be half a texel
 /// from the sun (sunrise.exr 3.9e-4 vs 4.9e-3), while on the smooth studio and apartment maps the
 /// coarser square loses a little (3.5e-4 vs 1.7e-4, 9.8e-4 vs 1.6e-4). So `sh9` projects the Lloyd
-/// steps' half-resolution image: a quarter of the texels, and a worst case 13× smaller.
+/// steps' half-resolution image: a quarter of the texels (0.095 instead of 0.18 ms on sunrise.exr,
+/// basis values evaluated per texel included), and a worst case 13× smaller.
 pub fn project_at_moments(image: &DomainImage) -> [f64; 27] {
     let side = image.side;
     let sr = image.texel_solid_angle() as f32;
@@ -94,29 +95,43 @@ pub fn project_at_moments(image: &DomainImage) -> [f64; 27] {
         .zip(image.moment.chunks(side))
         .enumerate()
     {
-        // Sum a row in f32, then into f64: a row is short enough for f32.
-        let mut acc = [0.0f32; 27];
+        // Sum a row in f32 (RGB in one register per coefficient), then into f64.
+        let mut acc = [Vec3A::ZERO; 9];
         for (i, (p, m)) in rad_row.iter().zip(moment_row).enumerate() {
-            let d = glam::Vec3::from_array(*m)
-                .try_normalize()
-                .unwrap_or_else(|| {
-                    image
-                        .domain
-                        .square_to_dir(DomainImage::texel_centre(side, i, j))
-                        .as_vec3()
-                });
-            let y = basis(d.as_dvec3()).map(|y| y as f32 * sr);
-            for k in 0..9 {
-                for c in 0..3 {
-                    acc[3 * k + c] += p[c] * y[k];
-                }
+            let d = Vec3::from_array(*m).try_normalize().unwrap_or_else(|| {
+                image
+                    .domain
+                    .square_to_dir(DomainImage::texel_centre(side, i, j))
+                    .as_vec3()
+            });
+            let p = Vec3A::from_array(*p) * sr;
+            for (a, y) in acc.iter_mut().zip(basis_f32(d)) {
+                *a += p * y;
             }
         }
-        for (o, a) in out.iter_mut().zip(acc) {
-            *o += a as f64;
+        for (k, a) in acc.iter().enumerate() {
+            for c in 0..3 {
+                out[3 * k + c] += a[c] as f64;
+            }
         }
     }
     out
+}
+
+/// [`basis`] in f32.
+fn basis_f32(d: Vec3) -> [f32; 9] {
+    let (x, y, z) = (d.x, d.y, d.z);
+    [
+        0.282_094_8,
+        0.488_602_5 * y,
+        0.488_602_5 * z,
+        0.488_602_5 * x,
+        1.092_548_4 * x * y,
+        1.092_548_4 * y * z,
+        0.315_391_57 * (3.0 * z * z - 1.0),
+        1.092_548_4 * x * z,
+        0.546_274_2 * (x * x - y * y),
+    ]
 }
 
 /// Irradiance at normal `n` from radiance coefficients (Ramamoorthi & Hanrahan 2001):
