@@ -185,8 +185,10 @@ enum Table {
 struct PixelTable {
     /// One entry per source pixel inside the domain, in pixel order.
     entries: Vec<PixelEntry>,
-    /// Per band of texels (one band per thread): the runs of consecutive pixels that land in it,
-    /// as (first pixel, first entry, length).
+    /// Runs of consecutive pixels with entries: (first pixel, first entry, length); kept to cut
+    /// new bands from when the thread count changes.
+    runs: Vec<(u32, u32, u32)>,
+    /// Per band of texels (one band per thread): the runs of consecutive pixels that land in it.
     bands: Vec<Band<Vec<(u32, u32, u32)>>>,
 }
 
@@ -356,9 +358,13 @@ impl PixelTable {
         }
         let bands = vec![Band {
             texels: 0..side * side,
-            work: runs,
+            work: runs.clone(),
         }];
-        PixelTable { entries, bands }
+        PixelTable {
+            entries,
+            runs,
+            bands,
+        }
     }
 
     /// Re-cuts the runs into `parts` bands of about equal pixel counts.
@@ -367,19 +373,11 @@ impl PixelTable {
         for e in &self.entries {
             per_texel[e.texel as usize] += 1;
         }
-        // Every run of the current bands, back in pixel order.
-        let mut all: Vec<(u32, u32, u32)> = self
-            .bands
-            .iter()
-            .flat_map(|b| b.work.iter())
-            .copied()
-            .collect();
-        all.sort_unstable_by_key(|r| r.0);
         self.bands = band_ranges(&per_texel, side, parts)
             .into_iter()
             .map(|texels| {
                 let mut runs: Vec<(u32, u32, u32)> = Vec::new();
-                for &(p0, e0, len) in &all {
+                for &(p0, e0, len) in &self.runs {
                     for k in 0..len {
                         let texel = self.entries[(e0 + k) as usize].texel as usize;
                         if !texels.contains(&texel) {
