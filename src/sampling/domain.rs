@@ -724,6 +724,24 @@ mod tests {
     use super::*;
     use std::f64::consts::PI;
 
+    /// Texel by texel, radiance and moment of `b` within `tol` (relative, absolute below 1) of `a`.
+    fn assert_close(a: &DomainImage, b: &DomainImage, tol: f32, what: &str) {
+        assert_eq!(a.side, b.side, "{what}");
+        for (x, y) in a
+            .radiance
+            .iter()
+            .zip(&b.radiance)
+            .chain(a.moment.iter().zip(&b.moment))
+        {
+            for c in 0..3 {
+                assert!(
+                    (x[c] - y[c]).abs() <= tol * x[c].abs().max(1.0),
+                    "{what}: {x:?} vs {y:?}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn threads_give_the_same_image() {
         let map = EnvMap::from_pixels(
@@ -741,11 +759,7 @@ mod tests {
             let mut r = Resampler::new(Projection::LatLong, 128, 64, Domain::Sphere, None);
             r.set_threads(threads);
             let b = r.resample(&map);
-            for (x, y) in a.radiance.iter().zip(&b.radiance) {
-                for c in 0..3 {
-                    assert!((x[c] - y[c]).abs() <= 1e-5 * x[c].abs().max(1.0));
-                }
-            }
+            assert_close(&a, &b, 1e-5, &format!("{threads} threads"));
         }
     }
 
@@ -774,19 +788,7 @@ mod tests {
             r.set_threads(3);
             r.set_threads(threads);
             let b = r.resample(&map);
-            for (x, y) in a
-                .radiance
-                .iter()
-                .zip(&b.radiance)
-                .chain(a.moment.iter().zip(&b.moment))
-            {
-                for c in 0..3 {
-                    assert!(
-                        (x[c] - y[c]).abs() <= 1e-5 * x[c].abs().max(1.0),
-                        "{threads} threads: {x:?} vs {y:?}"
-                    );
-                }
-            }
+            assert_close(&a, &b, 1e-5, &format!("{threads} threads"));
             assert_eq!(a.luminance, b.luminance);
         }
     }
@@ -840,20 +842,7 @@ mod tests {
             for threads in [1, 2, 3] {
                 fast.set_threads(threads);
                 let b = fast.resample(&map);
-                assert_eq!(a.side, b.side);
-                for (x, y) in a
-                    .radiance
-                    .iter()
-                    .zip(&b.radiance)
-                    .chain(a.moment.iter().zip(&b.moment))
-                {
-                    for c in 0..3 {
-                        assert!(
-                            (x[c] - y[c]).abs() <= 1e-4 * x[c].abs().max(1.0),
-                            "{domain:?} {threads} threads: {x:?} vs {y:?}"
-                        );
-                    }
-                }
+                assert_close(&a, &b, 1e-4, &format!("{domain:?} {threads} threads"));
             }
         }
     }
