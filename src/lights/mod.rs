@@ -142,6 +142,15 @@ fn has_coarse_copy(image: &DomainImage) -> bool {
     image.side.is_multiple_of(2) && image.side >= 2 * MIN_COARSE_SIDE
 }
 
+/// Makes `half` the half-resolution copy of `image` unless `current` says it already is: the
+/// Lloyd steps and `sh9` share one downsampling per frame.
+fn refresh_half(image: &DomainImage, half: &mut DomainImage, current: &mut bool) {
+    if !*current {
+        image.downsample_into(half);
+        *current = true;
+    }
+}
+
 /// Lloyd steps the voronoi method takes after its first assignment unless told otherwise (see
 /// [`Extractor::set_refine`]): two, the fewest with which its diffuse error is at most median
 /// cut's at every N ≥ 16 and its glossy error at every N ≥ 64 (docs/EVALUATION.md).
@@ -214,10 +223,7 @@ impl Extractor {
     pub fn sh9(&mut self) -> Option<Vec<f32>> {
         let image = self.image.as_ref()?;
         let coeffs = if has_coarse_copy(image) {
-            if !self.half_is_current {
-                image.downsample_into(&mut self.half_image);
-                self.half_is_current = true;
-            }
+            refresh_half(image, &mut self.half_image, &mut self.half_is_current);
             sh::project_at_moments(&self.half_image)
         } else {
             sh::project_at_moments(image)
@@ -399,9 +405,8 @@ impl Extractor {
         // and centroids, runs at full resolution.
         let coarse = has_coarse_copy(image);
         let mut half = std::mem::replace(&mut self.half_image, DomainImage::empty());
-        if coarse && !self.half_is_current {
-            image.downsample_into(&mut half);
-            self.half_is_current = true;
+        if coarse {
+            refresh_half(image, &mut half, &mut self.half_is_current);
         }
         let warped = self.seeds.clone();
         for _ in 0..self.refine {
