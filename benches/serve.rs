@@ -6,6 +6,10 @@
 //! 2. Sustained frames/s of the synthetic source at 1024×512 → 256 lights on one core (render,
 //!    extract, filter, serialise, in one thread).
 //! 3. POST /v1/lights requests/s for a 1024×512 EXR with 4 concurrent clients.
+//!
+//! Beside 1, the floor under its delivery part on the same machine: a bare tokio-tungstenite
+//! broadcast of a message of the same size to the same clients (`VEMLIGHT_BENCH_FLOOR_LENS=500,8760`
+//! runs only that, at the sizes given).
 
 use futures_util::StreamExt;
 use std::sync::Arc;
@@ -173,6 +177,65 @@ async fn post_throughput(
     (times.len() as f64 / start.elapsed().as_secs_f64(), times)
 }
 
+/// The floor under the daemon's fan-out on this machine: a bare tokio-tungstenite server with
+/// no pipeline and no HTTP routing that, from a thread of its own, publishes a message of
+/// `len` bytes every `1/fps` s on a `watch` channel, each client's task sending it on (the
+/// daemon's stream loop without pings, limits or metrics). The message carries the same two
+/// timestamp fields, both set when it is published, so the same clients measure it.
+fn start_bare_broadcast(fps: f64, len: usize) -> std::net::SocketAddr {
+    use futures_util::SinkExt;
+    let (tx, rx) =
+        tokio::sync::watch::channel::<Option<tokio_tungstenite::tungstenite::Utf8Bytes>>(None);
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    listener.set_nonblocking(true).unwrap();
+    tokio::spawn(async move {
+        let listener = tokio::net::TcpListener::from_std(listener).unwrap();
+        loop {
+            let (stream, _) = listener.accept().await.unwrap();
+            stream.set_nodelay(true).unwrap();
+            let mut rx = rx.clone();
+            tokio::spawn(async move {
+                let config = WebSocketConfig::default().read_buffer_size(4 * 1024);
+                let Ok(mut ws) =
+                    tokio_tungstenite::accept_async_with_config(stream, Some(config)).await
+                else {
+                    return;
+                };
+                while rx.changed().await.is_ok() {
+                    let Some(msg) = rx.borrow_and_update().clone() else {
+                        continue;
+                    };
+                    if ws.send(Message::Text(msg)).await.is_err() {
+                        return;
+                    }
+                }
+            });
+        }
+    });
+    std::thread::spawn(move || {
+        let period = Duration::from_secs_f64(1.0 / fps);
+        let mut next = Instant::now();
+        loop {
+            next += period;
+            std::thread::sleep(next.saturating_duration_since(Instant::now()));
+            let t = now_ns();
+            let head = format!("{{\"t_capture_ns\":{t},\"t_emit_ns\":{t},\"pad\":\"");
+            let mut msg = head.clone();
+            msg.extend(std::iter::repeat_n('x', len.saturating_sub(head.len() + 2)));
+            msg.push_str("\"}");
+            if tx.send(Some(msg.into())).is_err() {
+                return;
+            }
+        }
+    });
+    addr
+}
+
+/// Message sizes in bytes, comma-separated: run only the floor (see [`start_bare_broadcast`]),
+/// once per size.
+const FLOOR_LENS_ENV: &str = "VEMLIGHT_BENCH_FLOOR_LENS";
+
 /// Set in the child process that runs the clients apart from the server:
 /// "ADDR CLIENTS SECONDS THREADS" (THREADS 1: a current-thread runtime; 0: one worker per core).
 const CLIENTS_ENV: &str = "VEMLIGHT_BENCH_CLIENTS";
@@ -202,26 +265,37 @@ fn latency_from_another_process(
 
 /// Prints one latency line; `server` is what the daemon's own delivery histogram (`/metrics`,
 /// `vemlight_ws_delivery_seconds`) saw over the same messages: frame → handed to the socket.
-fn report(label: &str, samples: &[(f64, f64)], server: &HistogramCounts) {
-    let mut total: Vec<f64> = samples.iter().map(|s| s.0).collect();
-    let mut pipeline: Vec<f64> = samples.iter().map(|s| s.1).collect();
-    total.sort_by(f64::total_cmp);
-    pipeline.sort_by(f64::total_cmp);
+fn report(label: &str, samples: &[(f64, f64)], server: Option<&HistogramCounts>) {
+    let sorted = |f: fn(&(f64, f64)) -> f64| {
+        let mut v: Vec<f64> = samples.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v
+    };
+    let total = sorted(|s| s.0);
+    let pipeline = sorted(|s| s.1);
+    let delivery = sorted(|s| s.0 - s.1);
     println!(
-        "  {label}: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {} messages \
-         (in the pipeline, capture → document: p50 {:.2} ms, p99 {:.2} ms)",
+        "  {label}: p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {} messages",
         percentile(&total, 0.5),
         percentile(&total, 0.99),
         total.last().copied().unwrap_or(f64::NAN),
         total.len(),
-        percentile(&pipeline, 0.5),
-        percentile(&pipeline, 0.99),
     );
     println!(
-        "    the daemon's delivery histogram: {:.1} % written to the socket within 5 ms, p99 ≤ {} ms",
-        100.0 * server.fraction_within(0.005),
-        server.quantile_bound(0.99) * 1e3,
+        "    in the pipeline (capture → document): p50 {:.2} ms, p99 {:.2} ms; \
+         delivery (document → received): p50 {:.2} ms, p99 {:.2} ms",
+        percentile(&pipeline, 0.5),
+        percentile(&pipeline, 0.99),
+        percentile(&delivery, 0.5),
+        percentile(&delivery, 0.99),
     );
+    if let Some(server) = server {
+        println!(
+            "    the daemon's delivery histogram: {:.1} % written to the socket within 5 ms, p99 ≤ {} ms",
+            100.0 * server.fraction_within(0.005),
+            server.quantile_bound(0.99) * 1e3,
+        );
+    }
 }
 
 fn main() {
@@ -247,8 +321,32 @@ fn main() {
         }
         return;
     }
+    if let Ok(lens) = std::env::var(FLOOR_LENS_ENV) {
+        // Only the floor, at each message size given: what the fan-out costs per byte.
+        let rt = tokio::runtime::Runtime::new().unwrap();
+        rt.block_on(async {
+            for len in lens
+                .split(',')
+                .filter_map(|l| l.trim().parse::<usize>().ok())
+            {
+                let addr = start_bare_broadcast(30.0, len);
+                let samples = tokio::task::spawn_blocking(move || {
+                    latency_from_another_process(addr, 100, 8.0, 0)
+                })
+                .await
+                .unwrap();
+                report(
+                    &format!("the floor, {len}-byte messages, 100 clients in a second process"),
+                    &samples,
+                    None,
+                );
+            }
+        });
+        return;
+    }
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
+        let mut message_len = 0;
         // The default pipeline, then without the Lloyd steps (`serve --refine 0`).
         for refine in [PipelineConfig::default().refine, 0] {
             let cfg = PipelineConfig {
@@ -257,6 +355,7 @@ fn main() {
             };
             let (addr, hub) = start_server(30.0, cfg).await;
             tokio::time::sleep(Duration::from_secs(1)).await;
+            message_len = hub.latest().map_or(message_len, |p| p.json.len());
             println!(
                 "end-to-end latency, frame captured → LightSet received (64 lights, 30 frames/s, loopback, {refine} Lloyd steps)"
             );
@@ -264,7 +363,7 @@ fn main() {
                 let before = hub.metrics.ws_delivery.snapshot();
                 let samples = latency(addr, clients, 8.0).await;
                 let server = hub.metrics.ws_delivery.snapshot().since(&before);
-                report(&format!("{clients:>3} client(s)"), &samples, &server);
+                report(&format!("{clients:>3} client(s)"), &samples, Some(&server));
             }
             for (threads, label) in [
                 (0, "100 client(s) in a second process"),
@@ -277,7 +376,7 @@ fn main() {
                 .await
                 .unwrap();
                 let server = hub.metrics.ws_delivery.snapshot().since(&before);
-                report(label, &samples, &server);
+                report(label, &samples, Some(&server));
             }
             let m = &hub.metrics;
             println!(
@@ -297,6 +396,23 @@ fn main() {
                 m.stage_publish.mean_ms(),
             );
             hub.shutdown();
+        }
+
+        // The machine's floor for the fan-out (see start_bare_broadcast).
+        let addr = start_bare_broadcast(30.0, message_len);
+        println!(
+            "the floor: a bare tokio-tungstenite server broadcasting a {message_len}-byte message 30 times/s (no pipeline)"
+        );
+        for (threads, label) in [
+            (0, "100 client(s) in a second process"),
+            (1, "100 client(s) in a second process, one thread"),
+        ] {
+            let samples = tokio::task::spawn_blocking(move || {
+                latency_from_another_process(addr, 100, 8.0, threads)
+            })
+            .await
+            .unwrap();
+            report(label, &samples, None);
         }
 
         let (addr, hub) = start_server(1.0, PipelineConfig::default()).await;
