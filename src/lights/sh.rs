@@ -6,7 +6,7 @@
 //! Y₂₋₂ = 1.092548·xy, Y₂₋₁ = 1.092548·yz, Y₂₀ = 0.315392·(3z² − 1), Y₂₁ = 1.092548·xz,
 //! Y₂₂ = 0.546274·(x² − y²). Coefficients are radiance: L_lm = ∫ L(ω) Y_lm(ω) dω, RGB interleaved.
 
-use crate::sampling::{Domain, DomainImage};
+use crate::sampling::DomainImage;
 use glam::{DVec3, Vec3, Vec3A};
 use std::f64::consts::PI;
 
@@ -26,54 +26,31 @@ pub fn basis(d: DVec3) -> [f64; 9] {
     ]
 }
 
-/// Radiance coefficients of a domain image: 27 floats, [c0.r, c0.g, c0.b, c1.r, …].
+/// Radiance coefficients of a domain image: 27 floats, [c0.r, c0.g, c0.b, c1.r, …], with each
+/// texel's basis values taken at its centre (the eval's SH baseline).
 pub fn project(image: &DomainImage) -> [f64; 27] {
-    ShProjector::default().project(image)
-}
-
-/// Projects domain images onto the L2 basis, keeping the basis values of every texel between
-/// frames (evaluating them costs more than the projection itself).
-#[derive(Default)]
-pub struct ShProjector {
-    key: Option<(Domain, usize)>,
-    /// Y_lm at each texel centre, times the texel's solid angle.
-    basis: Vec<[f32; 9]>,
-}
-
-impl ShProjector {
-    pub fn project(&mut self, image: &DomainImage) -> [f64; 27] {
-        let side = image.side;
-        if self.key != Some((image.domain, side)) {
-            let sr = image.texel_solid_angle();
-            self.basis = (0..side * side)
-                .map(|t| {
-                    let d = image.domain.square_to_dir(DomainImage::texel_centre(
-                        side,
-                        t % side,
-                        t / side,
-                    ));
-                    basis(d).map(|y| (y * sr) as f32)
-                })
-                .collect();
-            self.key = Some((image.domain, side));
-        }
-        let mut out = [0.0f64; 27];
-        // Sum row by row in f32, then into f64: a row is short enough for f32.
-        for (rad_row, basis_row) in image.radiance.chunks(side).zip(self.basis.chunks(side)) {
-            let mut acc = [0.0f32; 27];
-            for (p, y) in rad_row.iter().zip(basis_row) {
-                for k in 0..9 {
-                    for c in 0..3 {
-                        acc[3 * k + c] += p[c] * y[k];
-                    }
+    let side = image.side;
+    let sr = image.texel_solid_angle();
+    let mut out = [0.0f64; 27];
+    // Sum row by row in f32, then into f64: a row is short enough for f32.
+    for (j, rad_row) in image.radiance.chunks(side).enumerate() {
+        let mut acc = [0.0f32; 27];
+        for (i, p) in rad_row.iter().enumerate() {
+            let d = image
+                .domain
+                .square_to_dir(DomainImage::texel_centre(side, i, j));
+            let y = basis(d).map(|y| (y * sr) as f32);
+            for k in 0..9 {
+                for c in 0..3 {
+                    acc[3 * k + c] += p[c] * y[k];
                 }
             }
-            for (o, a) in out.iter_mut().zip(acc) {
-                *o += a as f64;
-            }
         }
-        out
+        for (o, a) in out.iter_mut().zip(acc) {
+            *o += a as f64;
+        }
     }
+    out
 }
 
 /// Radiance coefficients with each texel's basis values taken at its first-moment direction (its
@@ -146,6 +123,7 @@ pub fn irradiance(coeffs: &[f64; 27], n: DVec3) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sampling::Domain;
 
     #[test]
     fn constant_sky_has_only_dc_and_exact_irradiance() {
