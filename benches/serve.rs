@@ -242,16 +242,17 @@ const CLIENTS_ENV: &str = "VEMLIGHT_BENCH_CLIENTS";
 
 /// The clients of [`latency`] in a second process (this executable again, with [`CLIENTS_ENV`]), as
 /// a deployment has them: the server's runtime then schedules only the server's tasks.
-fn latency_from_another_process(
+async fn latency_from_another_process(
     addr: std::net::SocketAddr,
     clients: usize,
     secs: f64,
     threads: usize,
 ) -> Vec<(f64, f64)> {
-    let out = std::process::Command::new(std::env::current_exe().unwrap())
+    let out = tokio::process::Command::new(std::env::current_exe().unwrap())
         .arg("--bench")
         .env(CLIENTS_ENV, format!("{addr} {clients} {secs} {threads}"))
         .output()
+        .await
         .expect("the client process");
     assert!(out.status.success(), "client process failed");
     String::from_utf8_lossy(&out.stdout)
@@ -330,11 +331,7 @@ fn main() {
                 .filter_map(|l| l.trim().parse::<usize>().ok())
             {
                 let addr = start_bare_broadcast(30.0, len);
-                let samples = tokio::task::spawn_blocking(move || {
-                    latency_from_another_process(addr, 100, 8.0, 0)
-                })
-                .await
-                .unwrap();
+                let samples = latency_from_another_process(addr, 100, 8.0, 0).await;
                 report(
                     &format!("the floor, {len}-byte messages, 100 clients in a second process"),
                     &samples,
@@ -370,11 +367,7 @@ fn main() {
                 (1, "100 client(s) in a second process, one thread"),
             ] {
                 let before = hub.metrics.ws_delivery.snapshot();
-                let samples = tokio::task::spawn_blocking(move || {
-                    latency_from_another_process(addr, 100, 8.0, threads)
-                })
-                .await
-                .unwrap();
+                let samples = latency_from_another_process(addr, 100, 8.0, threads).await;
                 let server = hub.metrics.ws_delivery.snapshot().since(&before);
                 report(label, &samples, Some(&server));
             }
@@ -407,11 +400,7 @@ fn main() {
             (0, "100 client(s) in a second process"),
             (1, "100 client(s) in a second process, one thread"),
         ] {
-            let samples = tokio::task::spawn_blocking(move || {
-                latency_from_another_process(addr, 100, 8.0, threads)
-            })
-            .await
-            .unwrap();
+            let samples = latency_from_another_process(addr, 100, 8.0, threads).await;
             report(label, &samples, None);
         }
 
