@@ -463,12 +463,12 @@ pub fn sanitize(pixels: &mut [[f32; 3]]) -> InputRepairs {
 /// Reads only the OpenEXR headers (no offset tables, no pixels) and refuses any layer larger than
 /// `max_pixels`, before a decoder sizes its buffers from a header that may lie.
 fn check_exr_header(bytes: &[u8], max_pixels: u64) -> Result<(), InputError> {
-    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(|e| {
-        InputError::Corrupt {
-            format: "OpenEXR",
-            reason: e.to_string(),
-        }
-    })?;
+    let corrupt = |e: exr::error::Error| InputError::Corrupt {
+        format: "OpenEXR",
+        reason: e.to_string(),
+    };
+    let meta =
+        exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(corrupt)?;
     for header in &meta.headers {
         let size = header.layer_size;
         let (width, height) = (size.width() as u64, size.height() as u64);
@@ -478,6 +478,91 @@ fn check_exr_header(bytes: &[u8], max_pixels: u64) -> Result<(), InputError> {
                 height,
                 limit: max_pixels,
             });
+        }
+    }
+    let dwa = |c: exr::compression::Compression| {
+        matches!(
+            c,
+            exr::compression::Compression::DWAA(_) | exr::compression::Compression::DWAB(_)
+        )
+    };
+    if meta.headers.iter().any(|h| dwa(h.compression)) {
+        check_dwa_chunks(bytes, &meta.headers).map_err(|e| match e {
+            DwaCheck::Read(e) => corrupt(e),
+            DwaCheck::Counter(reason) => InputError::Corrupt {
+                format: "OpenEXR",
+                reason,
+            },
+        })?;
+    }
+    Ok(())
+}
+
+enum DwaCheck {
+    Read(exr::error::Error),
+    Counter(String),
+}
+
+/// Every DWAA/DWAB chunk's leader (eleven little-endian u64 counters: version, unknown raw and
+/// packed sizes, AC, DC and RLE packed sizes, RLE unpacked and raw sizes, AC and DC value counts,
+/// AC coder) must describe no more data than its block can hold. The exr crate sizes its buffers
+/// from these counters, checked only against i64::MAX: one flipped bit in a shared map made it
+/// ask for 2^57 bytes, which aborts the process (an allocation failure is not a panic), so a
+/// corrupt upload would have stopped the daemon.
+fn check_dwa_chunks(bytes: &[u8], headers: &[exr::meta::header::Header]) -> Result<(), DwaCheck> {
+    use exr::block::chunk::CompressedBlock;
+    let reader = exr::block::reader::Reader::read_from_buffered(Cursor::new(bytes), false)
+        .map_err(DwaCheck::Read)?;
+    for chunk in reader.all_chunks(false).map_err(DwaCheck::Read)? {
+        let chunk = chunk.map_err(DwaCheck::Read)?;
+        let Some(header) = headers.get(chunk.layer_index) else {
+            return Err(DwaCheck::Counter("a chunk names a missing layer".into()));
+        };
+        if !matches!(
+            header.compression,
+            exr::compression::Compression::DWAA(_) | exr::compression::Compression::DWAB(_)
+        ) {
+            continue;
+        }
+        let data = match &chunk.compressed_block {
+            CompressedBlock::ScanLine(b) => &b.compressed_pixels_le,
+            CompressedBlock::Tile(b) => &b.compressed_pixels_le,
+            _ => continue, // deep data: refused later by the decoder
+        };
+        let section = header
+            .get_block_data_indices(&chunk.compressed_block)
+            .and_then(|tile| header.get_absolute_block_pixel_coordinates(tile))
+            .map_err(DwaCheck::Read)?;
+        let (block_w, block_h) = (section.size.width(), section.size.height());
+        if data.len() == block_w * block_h * header.channels.bytes_per_pixel {
+            continue; // stored raw: compressing did not make it smaller
+        }
+        // DCT blocks are 8 × 8 pixels, so a block's lossy channels hold at most this many
+        // coefficients; samples are at most 4 bytes.
+        let values = (block_w.div_ceil(8) * 8)
+            .saturating_mul(block_h.div_ceil(8) * 8)
+            .saturating_mul(header.channels.list.len());
+        let max_bytes = values.saturating_mul(4) as u64;
+        let counter = |k: usize| {
+            data.get(8 * k..8 * k + 8)
+                .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
+        };
+        let checks = [
+            (1, "unknown-channel size", max_bytes),
+            (6, "RLE unpacked size", max_bytes),
+            (7, "RLE raw size", max_bytes),
+            (8, "AC value count", values as u64),
+            (9, "DC value count", values as u64),
+        ];
+        for (k, what, limit) in checks {
+            // A leader cut short is left to the decoder, which reports it.
+            if let Some(v) = counter(k)
+                && v > limit
+            {
+                return Err(DwaCheck::Counter(format!(
+                    "a DWA chunk's {what} is {v}, more than its {block_w}×{block_h} block can hold ({limit})"
+                )));
+            }
         }
     }
     Ok(())

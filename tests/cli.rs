@@ -208,6 +208,17 @@ fn truncated_exr_is_a_clear_error() {
     assert_fails_with(&out, "cannot decode OpenEXR");
 }
 
+/// A DWA chunk whose counters claim more than its block holds is refused before decoding (the
+/// decoder would have aborted the process).
+#[test]
+fn dwa_chunk_with_a_huge_counter_is_a_clear_error() {
+    let dir = tmp_dir("dwa");
+    let p = dir.join("huge-ac.exr");
+    std::fs::write(&p, common::dwa_with_a_huge_ac_count()).unwrap();
+    let out = vemlight(&["lights", p.to_str().unwrap()]);
+    assert_fails_with(&out, "AC value count is 144115188075855872");
+}
+
 #[test]
 fn not_an_image_is_a_clear_error() {
     let dir = tmp_dir("notimage");

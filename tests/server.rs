@@ -416,7 +416,17 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
     .await;
     problem(c.post(&url).body(Vec::new()).send().await.unwrap(), 415).await;
 
-    // 422: a truncated EXR, and a map of the wrong aspect for the projection asked for.
+    // 422: a truncated EXR, a DWA chunk claiming 2^57 values (the decoder would abort the
+    // daemon), and a map of the wrong aspect for the projection asked for.
+    problem(
+        c.post(&url)
+            .body(common::dwa_with_a_huge_ac_count())
+            .send()
+            .await
+            .unwrap(),
+        422,
+    )
+    .await;
     problem(
         c.post(&url)
             .body(night[..night.len() / 2].to_vec())
@@ -455,7 +465,7 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
         .text()
         .await
         .unwrap();
-    assert!(m.contains("vemlight_http_lights_errors_total 12"), "{m}");
+    assert!(m.contains("vemlight_http_lights_errors_total 13"), "{m}");
 }
 
 /// The declared length is checked before any of the body is read: a client that sends only the
