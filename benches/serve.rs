@@ -181,15 +181,16 @@ async fn post_throughput(
 /// no pipeline and no HTTP routing that, from a thread of its own, publishes a message of
 /// `len` bytes every `1/fps` s on a `watch` channel, each client's task sending it on (the
 /// daemon's stream loop without pings, limits or metrics). The message carries the same two
-/// timestamp fields, both set when it is published, so the same clients measure it.
-fn start_bare_broadcast(fps: f64, len: usize) -> std::net::SocketAddr {
+/// timestamp fields, both set when it is published, so the same clients measure it. Dropping the
+/// returned [`BareBroadcast`] stops it.
+fn start_bare_broadcast(fps: f64, len: usize) -> BareBroadcast {
     use futures_util::SinkExt;
     let (tx, rx) =
         tokio::sync::watch::channel::<Option<tokio_tungstenite::tungstenite::Utf8Bytes>>(None);
     let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = listener.local_addr().unwrap();
     listener.set_nonblocking(true).unwrap();
-    tokio::spawn(async move {
+    let accept = tokio::spawn(async move {
         let listener = tokio::net::TcpListener::from_std(listener).unwrap();
         loop {
             let (stream, _) = listener.accept().await.unwrap();
@@ -213,10 +214,13 @@ fn start_bare_broadcast(fps: f64, len: usize) -> std::net::SocketAddr {
             });
         }
     });
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let stopped = stop.clone();
+    // Returning drops `tx`, which ends every client's task.
     std::thread::spawn(move || {
         let period = Duration::from_secs_f64(1.0 / fps);
         let mut next = Instant::now();
-        loop {
+        while !stopped.load(std::sync::atomic::Ordering::Relaxed) {
             next += period;
             std::thread::sleep(next.saturating_duration_since(Instant::now()));
             let t = now_ns();
@@ -229,7 +233,21 @@ fn start_bare_broadcast(fps: f64, len: usize) -> std::net::SocketAddr {
             }
         }
     });
-    addr
+    BareBroadcast { addr, stop, accept }
+}
+
+/// A running [`start_bare_broadcast`] server; dropping it stops the publisher and the listener.
+struct BareBroadcast {
+    addr: std::net::SocketAddr,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    accept: tokio::task::JoinHandle<()>,
+}
+
+impl Drop for BareBroadcast {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        self.accept.abort();
+    }
 }
 
 /// Message sizes in bytes, comma-separated: run only the floor (see [`start_bare_broadcast`]),
@@ -330,8 +348,8 @@ fn main() {
                 .split(',')
                 .filter_map(|l| l.trim().parse::<usize>().ok())
             {
-                let addr = start_bare_broadcast(30.0, len);
-                let samples = latency_from_another_process(addr, 100, 8.0, 0).await;
+                let bare = start_bare_broadcast(30.0, len);
+                let samples = latency_from_another_process(bare.addr, 100, 8.0, 0).await;
                 report(
                     &format!("the floor, {len}-byte messages, 100 clients in a second process"),
                     &samples,
@@ -392,7 +410,7 @@ fn main() {
         }
 
         // The machine's floor for the fan-out (see start_bare_broadcast).
-        let addr = start_bare_broadcast(30.0, message_len);
+        let bare = start_bare_broadcast(30.0, message_len);
         println!(
             "the floor: a bare tokio-tungstenite server broadcasting a {message_len}-byte message 30 times/s (no pipeline)"
         );
@@ -400,9 +418,10 @@ fn main() {
             (0, "100 client(s) in a second process"),
             (1, "100 client(s) in a second process, one thread"),
         ] {
-            let samples = latency_from_another_process(addr, 100, 8.0, threads).await;
+            let samples = latency_from_another_process(bare.addr, 100, 8.0, threads).await;
             report(label, &samples, None);
         }
+        drop(bare);
 
         let (addr, hub) = start_server(1.0, PipelineConfig::default()).await;
         let (rps, mut times) = post_throughput(addr, 4, 10.0).await;
