@@ -51,6 +51,31 @@ pub fn write_exr(path: &std::path::Path, w: usize, h: usize, px: &[[f32; 3]]) {
     .expect("write exr");
 }
 
+/// Where each chunk's data starts in a single-part scan-line EXR of `chunks` chunks: past the
+/// magic and version, the attributes (name, type, i32 size, value; an empty name ends them) and
+/// the offset table (one u64 per chunk), each chunk begins with its y and size (two i32).
+pub fn exr_chunk_data(bytes: &[u8], chunks: usize) -> Vec<usize> {
+    let mut at = 8;
+    let past_cstr = |at: usize| bytes[at..].iter().position(|&b| b == 0).unwrap() + at + 1;
+    while bytes[at] != 0 {
+        at = past_cstr(past_cstr(at));
+        at += 4 + i32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
+    }
+    at += 1;
+    let table_end = at + 8 * chunks;
+    (0..chunks)
+        .map(|k| {
+            let o = at + 8 * k;
+            let offset = u64::from_le_bytes(bytes[o..o + 8].try_into().unwrap()) as usize;
+            assert!(
+                offset >= table_end && offset + 8 <= bytes.len(),
+                "offset table"
+            );
+            offset + 8
+        })
+        .collect()
+}
+
 /// sunrise.exr (DWAB) with its first chunk's leader claiming 2^57 AC values, what one flipped bit
 /// did to a shared map: unchecked, the exr crate asks for that many bytes and the process aborts.
 pub fn dwa_with_a_huge_ac_count() -> Vec<u8> {
@@ -66,20 +91,8 @@ pub fn dwa_with_a_huge_ac_count() -> Vec<u8> {
         .layer_size
         .height()
         .div_ceil(header.compression.scan_lines_per_block());
-    // Past the magic and version, the attributes (name, type, i32 size, value; an empty name
-    // ends them), to the offset table (one u64 per chunk).
-    let mut at = 8;
-    let past_cstr = |at: usize| bytes[at..].iter().position(|&b| b == 0).unwrap() + at + 1;
-    while bytes[at] != 0 {
-        at = past_cstr(past_cstr(at));
-        at += 4 + i32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
-    }
-    at += 1;
-    let first_chunk = u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) as usize;
-    assert!(first_chunk >= at + 8 * chunks, "the offset table");
-    // The chunk's y and size (two i32), then the DWA leader's eleven u64 counters; the ninth is
-    // the AC value count.
-    let ac = first_chunk + 8 + 8 * 8;
+    // The DWA leader's eleven u64 counters open the chunk's data; the ninth is the AC value count.
+    let ac = exr_chunk_data(&bytes, chunks)[0] + 8 * 8;
     let intact = u64::from_le_bytes(bytes[ac..ac + 8].try_into().unwrap());
     assert!(
         intact <= 1024 * 256 * 3,
