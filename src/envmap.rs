@@ -292,9 +292,8 @@ impl EnvMap {
         max_pixels: u64,
     ) -> Result<Self, InputError> {
         let (format, name) = sniff(bytes)?;
-        // Read the header first and refuse oversized images before any pixel buffer exists.
         if format == image::ImageFormat::OpenExr {
-            check_exr_header(bytes, max_pixels)?;
+            return decode_exr(bytes, projection, max_pixels);
         }
         let dims = image::ImageReader::with_format(Cursor::new(bytes), format)
             .into_dimensions()
@@ -460,9 +459,144 @@ pub fn sanitize(pixels: &mut [[f32; 3]]) -> InputRepairs {
     r
 }
 
+/// Decodes an OpenEXR map from the channels [`exr_channels`] picks, after [`check_exr_header`].
+fn decode_exr(
+    bytes: &[u8],
+    projection: Option<Projection>,
+    max_pixels: u64,
+) -> Result<EnvMap, InputError> {
+    use exr::prelude::{ReadChannels, ReadLayers, ReadSpecificChannel};
+    let meta = check_exr_header(bytes, max_pixels)?;
+    let (layer, channels) = exr_channels(&meta)?;
+    let size = meta.headers[layer].layer_size;
+    let (w, h) = (size.width(), size.height());
+    let projection = projection.unwrap_or_else(|| Projection::guess(w, h));
+    projection.check_size(w, h)?;
+    let corrupt = |e: exr::error::Error| InputError::Corrupt {
+        format: "OpenEXR",
+        reason: e.to_string(),
+    };
+    // The pixels go straight into the map's buffer; the layer read is the first that has the
+    // channels, the one `exr_channels` sized.
+    fn create<D>(size: exr::math::Vec2<usize>, _: &D) -> (usize, Vec<[f32; 3]>) {
+        (size.width(), vec![[0.0f32; 3]; size.area()])
+    }
+    let read = exr::prelude::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .specific_channels();
+    let (width, pixels) = match channels {
+        ExrChannels::Rgb([r, g, b]) => {
+            read.required(r.as_str())
+                .required(g.as_str())
+                .required(b.as_str())
+                .collect_pixels(create, |(w, px), at, (r, g, b): (f32, f32, f32)| {
+                    px[at.y() * *w + at.x()] = [r, g, b]
+                })
+                .first_valid_layer()
+                .all_attributes()
+                .from_buffered(Cursor::new(bytes))
+                .map_err(corrupt)?
+                .layer_data
+                .channel_data
+                .pixels
+        }
+        ExrChannels::Luminance(y) => {
+            read.required(y.as_str())
+                .collect_pixels(create, |(w, px), at, (y,): (f32,)| {
+                    px[at.y() * *w + at.x()] = [y; 3]
+                })
+                .first_valid_layer()
+                .all_attributes()
+                .from_buffered(Cursor::new(bytes))
+                .map_err(corrupt)?
+                .layer_data
+                .channel_data
+                .pixels
+        }
+    };
+    if width != w || pixels.len() != w * h {
+        return Err(InputError::Corrupt {
+            format: "OpenEXR",
+            reason: "the layer read is not the one sized".into(),
+        });
+    }
+    EnvMap::from_pixels(w, h, pixels, projection)
+}
+
+/// Which channels of an EXR hold the map.
+#[derive(Debug, PartialEq)]
+enum ExrChannels {
+    /// Red, green and blue radiance.
+    Rgb([String; 3]),
+    /// Luminance only: a grey map.
+    Luminance(String),
+}
+
+/// Picks the radiance channels and the first layer (part) that has them: `R`, `G`, `B`; else
+/// those of a named layer (`diffuse.R` …, as renderers write them), preferring one whose name
+/// says "combined" (Blender's beauty pass), then the first by name; else luminance `Y` alone,
+/// read as grey. Luminance/chroma files (`Y`, `RY`, `BY`) and files with none of these are
+/// refused with the channels they do have.
+fn exr_channels(meta: &exr::meta::MetaData) -> Result<(usize, ExrChannels), InputError> {
+    let names = |h: &exr::meta::header::Header| -> Vec<String> {
+        h.channels.list.iter().map(|c| c.name.to_string()).collect()
+    };
+    // (layer, prefix) with R, G and B; prefix "" or ending in '.'.
+    let mut rgb: Vec<(usize, String)> = Vec::new();
+    for (layer, header) in meta.headers.iter().enumerate() {
+        let names = names(header);
+        for name in &names {
+            let Some(prefix) = name.strip_suffix('R') else {
+                continue;
+            };
+            let has = |c: &str| names.iter().any(|n| *n == format!("{prefix}{c}"));
+            if (prefix.is_empty() || prefix.ends_with('.')) && has("G") && has("B") {
+                rgb.push((layer, prefix.to_string()));
+            }
+        }
+    }
+    rgb.sort_by_key(|(layer, prefix)| {
+        (
+            !prefix.is_empty(),
+            !prefix.to_lowercase().contains("combined"),
+            prefix.clone(),
+            *layer,
+        )
+    });
+    if let Some((layer, p)) = rgb.into_iter().next() {
+        return Ok((
+            layer,
+            ExrChannels::Rgb(["R", "G", "B"].map(|c| format!("{p}{c}"))),
+        ));
+    }
+    for (layer, header) in meta.headers.iter().enumerate() {
+        let names = names(header);
+        if names.iter().any(|n| n == "Y") {
+            if names.iter().any(|n| n == "RY" || n == "BY") {
+                return Err(InputError::Unusable(
+                    "luminance/chroma OpenEXR (Y, RY, BY) is not supported: convert it to RGB"
+                        .into(),
+                ));
+            }
+            return Ok((layer, ExrChannels::Luminance("Y".into())));
+        }
+    }
+    let all: Vec<String> = meta.headers.iter().flat_map(names).collect();
+    Err(InputError::Unusable(format!(
+        "OpenEXR has no R, G, B or Y channels (it has: {})",
+        if all.is_empty() {
+            "none".into()
+        } else {
+            all.join(", ")
+        }
+    )))
+}
+
 /// Reads only the OpenEXR headers (no offset tables, no pixels) and refuses any layer larger than
-/// `max_pixels`, before a decoder sizes its buffers from a header that may lie.
-fn check_exr_header(bytes: &[u8], max_pixels: u64) -> Result<(), InputError> {
+/// `max_pixels`, before a decoder sizes its buffers from a header that may lie; then checks the
+/// DWA chunks' counters (see [`check_dwa_chunks`]).
+fn check_exr_header(bytes: &[u8], max_pixels: u64) -> Result<exr::meta::MetaData, InputError> {
     let corrupt = |e: exr::error::Error| InputError::Corrupt {
         format: "OpenEXR",
         reason: e.to_string(),
@@ -495,7 +629,7 @@ fn check_exr_header(bytes: &[u8], max_pixels: u64) -> Result<(), InputError> {
             },
         })?;
     }
-    Ok(())
+    Ok(meta)
 }
 
 enum DwaCheck {
@@ -699,5 +833,75 @@ mod tests {
             EnvMap::decode(b"", None, DEFAULT_MAX_PIXELS),
             Err(InputError::UnsupportedFormat(_))
         ));
+    }
+
+    /// An in-memory OpenEXR of 8 × 4 pixels with these (name, constant value) f32 channels in
+    /// one part.
+    fn exr_with(channels: &[(&str, f32)]) -> Vec<u8> {
+        use exr::prelude::*;
+        let list = channels
+            .iter()
+            .map(|&(name, v)| AnyChannel::new(name, FlatSamples::F32(vec![v; 8 * 4])))
+            .collect();
+        let image = Image::from_channels((8, 4), AnyChannels::sort(list));
+        let mut out = Cursor::new(Vec::new());
+        image.write().to_buffered(&mut out).expect("writes");
+        out.into_inner()
+    }
+
+    fn first_pixel(bytes: &[u8]) -> Result<[f32; 3], InputError> {
+        EnvMap::decode(bytes, None, DEFAULT_MAX_PIXELS).map(|m| m.pixels[0])
+    }
+
+    #[test]
+    fn exr_channels_plain_named_and_luminance() {
+        let rgb = exr_with(&[("R", 1.0), ("G", 2.0), ("B", 3.0), ("A", 0.5)]);
+        assert_eq!(first_pixel(&rgb).unwrap(), [1.0, 2.0, 3.0]);
+        // Unprefixed RGB wins over a named layer.
+        let both = exr_with(&[("R", 1.0), ("G", 2.0), ("B", 3.0), ("spec.R", 9.0)]);
+        assert_eq!(first_pixel(&both).unwrap(), [1.0, 2.0, 3.0]);
+        // A renderer's passes: the combined one, whatever its place by name.
+        let passes = exr_with(&[
+            ("ViewLayer.Combined.R", 4.0),
+            ("ViewLayer.Combined.G", 5.0),
+            ("ViewLayer.Combined.B", 6.0),
+            ("ViewLayer.Alpha.R", 7.0),
+            ("ViewLayer.Alpha.G", 7.0),
+            ("ViewLayer.Alpha.B", 7.0),
+            ("ViewLayer.Depth.Z", 1e9),
+        ]);
+        assert_eq!(first_pixel(&passes).unwrap(), [4.0, 5.0, 6.0]);
+        // No combined pass: the first layer by name.
+        let layers = exr_with(&[
+            ("specular.R", 7.0),
+            ("specular.G", 7.0),
+            ("specular.B", 7.0),
+            ("diffuse.R", 1.0),
+            ("diffuse.G", 2.0),
+            ("diffuse.B", 3.0),
+        ]);
+        assert_eq!(first_pixel(&layers).unwrap(), [1.0, 2.0, 3.0]);
+        // Luminance alone: grey.
+        assert_eq!(first_pixel(&exr_with(&[("Y", 2.5)])).unwrap(), [2.5; 3]);
+        // "xR" is not a layer's red: no R, G, B here.
+        let odd = exr_with(&[("xR", 1.0), ("xG", 1.0), ("xB", 1.0)]);
+        match first_pixel(&odd) {
+            Err(InputError::Unusable(m)) => assert!(m.contains("xB, xG, xR"), "{m}"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn exr_without_usable_channels_says_what_it_has() {
+        match first_pixel(&exr_with(&[("Z", 1.0), ("A", 1.0)])) {
+            Err(InputError::Unusable(m)) => {
+                assert!(m.contains("no R, G, B or Y") && m.contains("A, Z"), "{m}")
+            }
+            other => panic!("{other:?}"),
+        }
+        match first_pixel(&exr_with(&[("Y", 1.0), ("RY", 0.1), ("BY", 0.1)])) {
+            Err(InputError::Unusable(m)) => assert!(m.contains("luminance/chroma"), "{m}"),
+            other => panic!("{other:?}"),
+        }
     }
 }
