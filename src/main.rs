@@ -115,6 +115,10 @@ struct ServeArgs {
     /// Bearer token required by every endpoint but /healthz.
     #[arg(long, env = "VEMLIGHT_TOKEN", hide_env_values = true)]
     token: Option<String>,
+    /// A web page origin allowed to call the API from a browser (CORS), e.g.
+    /// https://app.example.com; repeat for more, or `*` for any. None by default.
+    #[arg(long = "cors-origin", value_name = "ORIGIN")]
+    cors_origins: Vec<String>,
     /// Largest accepted POST body in bytes.
     #[arg(long, default_value_t = 64 * 1024 * 1024)]
     max_body: usize,
@@ -295,7 +299,7 @@ fn run_lights(args: LightsArgs) -> anyhow::Result<()> {
 /// SIGTERM.
 fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
     use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
-    use vemlight::server::{AppState, Uploads, WsConfig, run, shutdown_signal};
+    use vemlight::server::{AppState, CorsOrigins, Uploads, WsConfig, run, shutdown_signal};
     use vemlight::temporal::{FilterKind, FilterSpec};
 
     tracing_subscriber::fmt()
@@ -333,6 +337,8 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
         )
     })?;
 
+    let cors = CorsOrigins::parse(&args.cors_origins).map_err(anyhow::Error::msg)?;
+
     let hub = Hub::new(args.lights, 16, &source.describe());
     let cfg = PipelineConfig {
         method: args.method,
@@ -351,7 +357,8 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
         args.token.clone(),
         Uploads::new(args.max_body, args.max_pixels, workers),
         WsConfig::default(),
-    );
+    )
+    .with_cors(cors);
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async move {
         let listener = tokio::net::TcpListener::bind(addr)

@@ -388,6 +388,10 @@ fn serve_configuration_errors_exit_with_a_message() {
         ),
         (vec!["serve", "--sky-size", "100x100"], "2:1"),
         (vec!["serve", "--filter", "kalman"], "unknown filter"),
+        (
+            vec!["serve", "--cors-origin", "app.example.com"],
+            "is not an origin",
+        ),
     ] {
         let out = vemlight(&args);
         assert_fails_with(&out, needle);

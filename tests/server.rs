@@ -14,7 +14,7 @@ use tokio_tungstenite::tungstenite::http::HeaderValue;
 use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
 use vemlight::capture::{FrameSource, SourceError, pace};
 use vemlight::envmap::{EnvMap, Projection};
-use vemlight::server::{AppState, Uploads, WsConfig, run};
+use vemlight::server::{AppState, CorsOrigins, Uploads, WsConfig, run};
 
 /// Frames from memory at a fixed rate: `frames` in turn, forever or `limit` times, with an
 /// optional bad frame at a given index.
@@ -88,6 +88,15 @@ struct Server {
 }
 
 async fn start(source: MemorySource, token: Option<&str>, max_body: usize) -> Server {
+    start_with_cors(source, token, max_body, CorsOrigins::None).await
+}
+
+async fn start_with_cors(
+    source: MemorySource,
+    token: Option<&str>,
+    max_body: usize,
+    cors: CorsOrigins,
+) -> Server {
     let hub = Hub::new(64, 16, "memory");
     pipeline::spawn(Box::new(source), hub.clone(), PipelineConfig::default()).unwrap();
     let state = AppState::new(
@@ -98,7 +107,8 @@ async fn start(source: MemorySource, token: Option<&str>, max_body: usize) -> Se
             ping_interval: Duration::from_secs(30),
             send_timeout: Duration::from_secs(5),
         },
-    );
+    )
+    .with_cors(cors);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap();
     tokio::spawn(async move { run(listener, state, std::future::pending()).await.unwrap() });
@@ -466,6 +476,109 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
         .await
         .unwrap();
     assert!(m.contains("vemlight_http_lights_errors_total 13"), "{m}");
+}
+
+/// A web page: its browser's WebSocket cannot send headers, so the stream takes the token as
+/// `access_token` (and only the stream); with `--cors-origin` the API answers preflights and
+/// labels its answers, errors included, for that origin and no other.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn browsers_get_cors_headers_and_the_stream_takes_a_query_token() {
+    let page = "https://app.example.com";
+    let cors = CorsOrigins::parse(&[page.to_string()]).unwrap();
+    let s = start_with_cors(
+        MemorySource::new(vec![small_sky()], 20.0),
+        Some("s3cret"),
+        64 << 20,
+        cors,
+    )
+    .await;
+    let mut ws = connect(s.addr, "?lights=8&access_token=s3cret", None).await;
+    let set = next_set(&mut ws, Duration::from_secs(5)).await;
+    assert_eq!(set["lights"].as_array().unwrap().len(), 8);
+    for wrong in ["?access_token=wrong", "?access_token=", ""] {
+        let req = format!("ws://{}/v1/stream{wrong}", s.addr)
+            .into_client_request()
+            .unwrap();
+        match tokio_tungstenite::connect_async(req).await {
+            Err(tokio_tungstenite::tungstenite::Error::Http(r)) => {
+                assert_eq!(r.status(), 401, "{wrong}")
+            }
+            other => panic!("{wrong}: {:?}", other.map(|_| ())),
+        }
+    }
+    let c = reqwest::Client::new();
+    let url = |p: &str| format!("http://{}{p}", s.addr);
+    // Not in the URL of the other endpoints.
+    let r = c
+        .get(url("/v1/lights/latest?access_token=s3cret"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 401);
+
+    // The preflight of a POST with a token, answered before the token is checked.
+    let pre = c
+        .request(reqwest::Method::OPTIONS, url("/v1/lights"))
+        .header("Origin", page)
+        .header("Access-Control-Request-Method", "POST")
+        .header(
+            "Access-Control-Request-Headers",
+            "authorization,content-type",
+        )
+        .send()
+        .await
+        .unwrap();
+    assert!(pre.status().is_success(), "{}", pre.status());
+    let h = pre.headers();
+    assert_eq!(h["access-control-allow-origin"], page);
+    let allowed = h["access-control-allow-headers"]
+        .to_str()
+        .unwrap()
+        .to_lowercase();
+    assert!(allowed.contains("authorization") && allowed.contains("content-type"));
+    assert!(
+        h["access-control-allow-methods"]
+            .to_str()
+            .unwrap()
+            .contains("POST")
+    );
+    // The answers, a refusal included, name the page's origin.
+    for token in ["s3cret", "wrong"] {
+        let r = c
+            .get(url("/v1/lights/latest"))
+            .header("Origin", page)
+            .bearer_auth(token)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), if token == "wrong" { 401 } else { 200 });
+        assert_eq!(r.headers()["access-control-allow-origin"], page);
+    }
+    // Another origin gets no permission.
+    let r = c
+        .get(url("/v1/lights/latest"))
+        .header("Origin", "https://evil.example.net")
+        .bearer_auth("s3cret")
+        .send()
+        .await
+        .unwrap();
+    assert!(r.headers().get("access-control-allow-origin").is_none());
+}
+
+#[test]
+fn cors_origins_are_checked() {
+    assert_eq!(CorsOrigins::parse(&[]).unwrap(), CorsOrigins::None);
+    assert_eq!(CorsOrigins::parse(&["*".into()]).unwrap(), CorsOrigins::Any);
+    for bad in [
+        "app.example.com",
+        "https://app.example.com/page",
+        "ftp://x",
+        "*,x",
+    ] {
+        let values: Vec<String> = bad.split(',').map(String::from).collect();
+        assert!(CorsOrigins::parse(&values).is_err(), "{bad}");
+    }
+    assert!(CorsOrigins::parse(&["http://localhost:8080".into(), "https://a.b".into()]).is_ok());
 }
 
 /// The declared length is checked before any of the body is read: a client that sends only the

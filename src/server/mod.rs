@@ -40,7 +40,70 @@ pub struct AppState {
     pub uploads: Arc<Uploads>,
     /// WebSocket timing.
     pub ws: Arc<WsConfig>,
+    /// Web pages allowed to call the API from their origin (CORS); none by default.
+    pub cors: CorsOrigins,
     started: Instant,
+}
+
+/// Which web origins may read the API's answers from a browser (CORS): the daemon's endpoints
+/// then answer preflight requests and carry `Access-Control-Allow-Origin`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum CorsOrigins {
+    /// No CORS headers: only same-origin pages and non-browser clients.
+    #[default]
+    None,
+    /// Any origin (`*`).
+    Any,
+    /// These origins exactly (`https://app.example.com`).
+    List(Vec<HeaderValue>),
+}
+
+impl CorsOrigins {
+    /// From `--cors-origin` values: `*` alone, or origins `scheme://host[:port]`.
+    pub fn parse(values: &[String]) -> Result<Self, String> {
+        if values.is_empty() {
+            return Ok(CorsOrigins::None);
+        }
+        if values.iter().any(|v| v == "*") {
+            return if values.len() == 1 {
+                Ok(CorsOrigins::Any)
+            } else {
+                Err("--cors-origin '*' allows every origin: give it alone".into())
+            };
+        }
+        values
+            .iter()
+            .map(|v| {
+                let (scheme, host) = v.split_once("://").unwrap_or(("", ""));
+                let ok = matches!(scheme, "http" | "https")
+                    && !host.is_empty()
+                    && !host.contains(['/', '?', '#', ' ']);
+                match HeaderValue::from_str(v) {
+                    Ok(h) if ok => Ok(h),
+                    _ => Err(format!(
+                        "--cors-origin '{v}' is not an origin like https://app.example.com (scheme, host, optional port; no path)"
+                    )),
+                }
+            })
+            .collect::<Result<_, _>>()
+            .map(CorsOrigins::List)
+    }
+
+    fn layer(&self) -> Option<tower_http::cors::CorsLayer> {
+        use tower_http::cors::{AllowOrigin, CorsLayer};
+        let origin = match self {
+            CorsOrigins::None => return None,
+            CorsOrigins::Any => AllowOrigin::any(),
+            CorsOrigins::List(list) => AllowOrigin::list(list.clone()),
+        };
+        Some(
+            CorsLayer::new()
+                .allow_origin(origin)
+                .allow_methods([axum::http::Method::GET, axum::http::Method::POST])
+                .allow_headers([header::AUTHORIZATION, header::CONTENT_TYPE])
+                .max_age(Duration::from_secs(600)),
+        )
+    }
 }
 
 /// Limits of `POST /v1/lights` and the extractors that serve it.
@@ -89,8 +152,15 @@ impl AppState {
             token: token.filter(|t| !t.is_empty()).map(Into::into),
             uploads: Arc::new(uploads),
             ws: Arc::new(ws),
+            cors: CorsOrigins::None,
             started: Instant::now(),
         }
+    }
+
+    /// Lets web pages from `origins` call the API (see [`CorsOrigins`]).
+    pub fn with_cors(mut self, origins: CorsOrigins) -> Self {
+        self.cors = origins;
+        self
     }
 }
 
@@ -102,12 +172,19 @@ pub fn app(state: AppState) -> Router {
         .route("/v1/lights/latest", get(latest))
         .route("/metrics", get(metrics))
         .route_layer(middleware::from_fn_with_state(state.clone(), require_token));
-    Router::new()
+    let cors = state.cors.layer();
+    let router = Router::new()
         .route("/healthz", get(healthz))
         .merge(protected)
         // Uploads are limited by `Uploads::max_body`, checked in the handler.
         .layer(axum::extract::DefaultBodyLimit::disable())
-        .with_state(state)
+        .with_state(state);
+    // Outermost, so preflight requests are answered before the token check and error
+    // documents carry the headers too (a page can then read why it was refused).
+    match cors {
+        Some(cors) => router.layer(cors),
+        None => router,
+    }
 }
 
 /// Serves [`app`] on `listener` until `shutdown` resolves. Every connection gets TCP_NODELAY: a
@@ -129,15 +206,29 @@ pub async fn run(
         .await
 }
 
-/// Rejects requests without the configured bearer token (constant-time comparison).
+/// Rejects requests without the configured bearer token (constant-time comparison). A browser's
+/// WebSocket cannot send headers, so `GET /v1/stream` also takes the token as the `access_token`
+/// query parameter (RFC 6750 §2.3); nowhere else, as URLs end up in logs.
 async fn require_token(State(state): State<AppState>, req: Request, next: Next) -> Response {
     if let Some(token) = &state.token {
-        let given = req
+        let from_header = req
             .headers()
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "))
-            .unwrap_or("");
+            .and_then(|v| v.strip_prefix("Bearer "));
+        let from_query = || {
+            if req.uri().path() != "/v1/stream" {
+                return None;
+            }
+            Query::<HashMap<String, String>>::try_from_uri(req.uri())
+                .ok()?
+                .0
+                .remove("access_token")
+        };
+        let given = match from_header {
+            Some(t) => t.to_string(),
+            None => from_query().unwrap_or_default(),
+        };
         if !constant_time_eq(given.as_bytes(), token.as_bytes()) {
             return ApiError::Unauthorized.into_response();
         }
