@@ -25,6 +25,8 @@ struct MemorySource {
     emitted: usize,
     limit: Option<usize>,
     bad_at: Option<usize>,
+    /// After this many frames, block forever (a frozen camera pipe that never closes).
+    hang_after: Option<usize>,
 }
 
 impl MemorySource {
@@ -36,6 +38,7 @@ impl MemorySource {
             emitted: 0,
             limit: None,
             bad_at: None,
+            hang_after: None,
         }
     }
 }
@@ -44,6 +47,11 @@ impl FrameSource for MemorySource {
     fn next_frame(&mut self, out: &mut EnvMap) -> Result<bool, SourceError> {
         if self.limit.is_some_and(|l| self.emitted >= l) {
             return Ok(false);
+        }
+        if self.hang_after.is_some_and(|l| self.emitted >= l) {
+            loop {
+                std::thread::sleep(Duration::from_secs(1));
+            }
         }
         pace(&mut self.next, self.fps);
         let k = self.emitted;
@@ -670,6 +678,46 @@ async fn the_token_is_enforced_everywhere_but_healthz() {
             .status(),
         200
     );
+}
+
+/// A source that stops delivering without closing or failing is called stalled by /healthz after
+/// ten frame periods (at least 2 s), while the last good set is still served.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_source_is_reported() {
+    let mut src = MemorySource::new(vec![small_sky()], 30.0);
+    src.hang_after = Some(5);
+    let s = start(src, None, 64 << 20).await;
+    let c = reqwest::Client::new();
+    let url = format!("http://{}", s.addr);
+    let (mut seen_ok, mut health) = (false, serde_json::Value::Null);
+    for _ in 0..120 {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        health = c
+            .get(format!("{url}/healthz"))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        seen_ok |= health["status"] == "ok";
+        if health["source"]["stalled"] == true {
+            break;
+        }
+    }
+    assert!(seen_ok, "healthy while frames came");
+    assert_eq!(health["source"]["stalled"], true, "{health}");
+    assert_eq!(health["source"]["state"], "running");
+    assert_eq!(health["status"], "degraded");
+    assert_eq!(health["serving_last_good_lightset"], true);
+    assert_eq!(health["source"]["stall_after_s"], 2.0);
+    assert!(health["source"]["last_frame_age_s"].as_f64().unwrap() >= 2.0);
+    let latest = c
+        .get(format!("{url}/v1/lights/latest"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(latest.status(), 200);
 }
 
 /// A bad frame is skipped and counted; when the source ends, the last good set is still served

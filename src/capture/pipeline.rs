@@ -69,6 +69,21 @@ pub struct SourceHealth {
     pub frames_captured: u64,
     /// Seconds since the last good frame; `None` before the first.
     pub last_frame_age_s: Option<f64>,
+    /// Running, but no good frame for `stall_after_s`: a camera pipe that froze without closing,
+    /// say. The last good set is still served, as when the source fails.
+    pub stalled: bool,
+    /// See [`stall_after`].
+    pub stall_after_s: f64,
+}
+
+/// How long a running source may go without a good frame before `/healthz` calls it stalled: ten
+/// frame periods, at least 2 s; 5 s for a source with no nominal rate (stdin).
+pub fn stall_after(nominal_fps: f64) -> Duration {
+    if nominal_fps > 0.0 && nominal_fps.is_finite() {
+        Duration::from_secs_f64((10.0 / nominal_fps).max(2.0))
+    } else {
+        Duration::from_secs(5)
+    }
 }
 
 struct HealthState {
@@ -77,6 +92,7 @@ struct HealthState {
     last_error: Option<String>,
     frames: u64,
     last_frame: Option<Instant>,
+    stall_after: Duration,
 }
 
 /// One light count's channel and how many subscribers want it.
@@ -138,6 +154,7 @@ impl Hub {
                 last_error: None,
                 frames: 0,
                 last_frame: None,
+                stall_after: stall_after(0.0),
             }),
             shutdown: AtomicBool::new(false),
             shutdown_tx: watch::channel(false).0,
@@ -204,6 +221,9 @@ impl Hub {
             last_error: h.last_error.clone(),
             frames_captured: h.frames,
             last_frame_age_s: h.last_frame.map(|t| t.elapsed().as_secs_f64()),
+            stalled: h.state == "running"
+                && h.last_frame.is_some_and(|t| t.elapsed() > h.stall_after),
+            stall_after_s: h.stall_after.as_secs_f64(),
         }
     }
 
@@ -255,6 +275,7 @@ pub fn spawn(
     let mailbox = Arc::new(Mailbox::default());
     let fps = source.nominal_fps();
     let source_name = source.describe();
+    hub.set_health(|h| h.stall_after = stall_after(fps));
 
     let (mb, h) = (mailbox.clone(), hub.clone());
     std::thread::Builder::new()

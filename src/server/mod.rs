@@ -263,7 +263,7 @@ async fn healthz(State(state): State<AppState>) -> Response {
     let latest = state.hub.latest();
     let status = match (latest.is_some(), source.state) {
         (false, _) => "starting",
-        (true, "running") => "ok",
+        (true, "running") if !source.stalled => "ok",
         (true, _) => "degraded",
     };
     let body = serde_json::json!({
