@@ -484,6 +484,7 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
         .await
         .unwrap();
     assert!(m.contains("vemlight_http_lights_errors_total 13"), "{m}");
+    assert!(m.contains("\nvemlight_source_up 1\n"), "{m}");
 }
 
 /// A web page: its browser's WebSocket cannot send headers, so the stream takes the token as
@@ -712,6 +713,22 @@ async fn a_stalled_source_is_reported() {
     assert_eq!(health["serving_last_good_lightset"], true);
     assert_eq!(health["source"]["stall_after_s"], 2.0);
     assert!(health["source"]["last_frame_age_s"].as_f64().unwrap() >= 2.0);
+    let m = c
+        .get(format!("{url}/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(m.contains("\nvemlight_source_up 0\n"), "{m}");
+    let age: f64 = m
+        .lines()
+        .find_map(|l| l.strip_prefix("vemlight_lightset_age_seconds "))
+        .expect("the age gauge")
+        .parse()
+        .unwrap();
+    assert!(age >= 2.0, "{age}");
     let latest = c
         .get(format!("{url}/v1/lights/latest"))
         .send()

@@ -283,14 +283,33 @@ async fn healthz(State(state): State<AppState>) -> Response {
     (code, axum::Json(body)).into_response()
 }
 
-/// `GET /metrics`: Prometheus text format.
+/// `GET /metrics`: Prometheus text format: the counters and histograms, then two gauges from
+/// the source's health, for alerts on a source that has stopped.
 async fn metrics(State(state): State<AppState>) -> Response {
+    use std::fmt::Write;
+    let mut text = state.hub.metrics.render();
+    let source = state.hub.health();
+    let up = source.state == "running" && !source.stalled;
+    let _ = writeln!(
+        text,
+        "# HELP vemlight_source_up Whether the source delivers frames (0: starting, failed, ended or stalled).\n\
+         # TYPE vemlight_source_up gauge\nvemlight_source_up {}",
+        u8::from(up)
+    );
+    if let Some(p) = state.hub.latest() {
+        let _ = writeln!(
+            text,
+            "# HELP vemlight_lightset_age_seconds Age of the newest LightSet's frame.\n\
+             # TYPE vemlight_lightset_age_seconds gauge\nvemlight_lightset_age_seconds {:.6}",
+            p.captured_at.elapsed().as_secs_f64()
+        );
+    }
     (
         [(
             header::CONTENT_TYPE,
             HeaderValue::from_static("text/plain; version=0.0.4"),
         )],
-        state.hub.metrics.render(),
+        text,
     )
         .into_response()
 }
