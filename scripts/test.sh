@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The project's one test command (README.md, .ci/run): installs what the tests need when it is
-# missing — Mesa's software Vulkan driver, for the headless rendering tests — then builds and runs
-# every test once, in release mode (the extraction tests crunch real HDR maps).
+# missing — Mesa's software Vulkan driver, for the headless rendering tests, and Chromium, for the
+# live view's browser test — then builds and runs every test once, in release mode (the
+# extraction tests crunch real HDR maps).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -10,13 +11,22 @@ have_lavapipe() {
     { ldconfig -p 2>/dev/null | grep -q 'libvulkan\.so\.1'; }
 }
 
-if ! have_lavapipe; then
+have_chromium() {
+  command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1
+}
+
+missing=()
+have_lavapipe || missing+=(mesa-vulkan-drivers libvulkan1)
+have_chromium || missing+=(chromium)
+if [ ${#missing[@]} -gt 0 ]; then
   SUDO=""
   [ "$(id -u)" = 0 ] || SUDO="sudo"
-  echo "scripts/test.sh: installing Mesa's software Vulkan driver (mesa-vulkan-drivers)" >&2
+  echo "scripts/test.sh: installing ${missing[*]}" >&2
   $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
+# The live view's browser test runs, not skips (tests/viewer_browser.rs).
+export VEMLIGHT_REQUIRE_BROWSER=1
 
 # Mesa warns without a runtime dir; a private one is enough.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"

@@ -664,6 +664,15 @@ async fn the_token_is_enforced_everywhere_but_healthz() {
         .await
         .unwrap();
     assert_eq!(r.status(), 401);
+    // The live view is a static page: no token; it connects to the stream with the subprotocol
+    // and passes its own access_token on.
+    let page = c.get(format!("{base_url}/")).send().await.unwrap();
+    assert_eq!(page.status(), 200);
+    assert_eq!(page.headers()["content-type"], "text/html; charset=utf-8");
+    let html = page.text().await.unwrap();
+    for needle in ["/v1/stream", "\"vemlight.v1\"", "access_token", "<canvas"] {
+        assert!(html.contains(needle), "the page lacks {needle}");
+    }
     // WebSocket: refused without the token, served with it.
     let req = format!("ws://{}/v1/stream", s.addr)
         .into_client_request()

@@ -174,6 +174,7 @@ pub fn app(state: AppState) -> Router {
         .route_layer(middleware::from_fn_with_state(state.clone(), require_token));
     let cors = state.cors.layer();
     let router = Router::new()
+        .route("/", get(viewer))
         .route("/healthz", get(healthz))
         .merge(protected)
         // Uploads are limited by `Uploads::max_body`, checked in the handler.
@@ -256,8 +257,24 @@ where
         .transpose()
 }
 
+/// `GET /`: the live view (src/server/viewer.html), a browser client of `/v1/stream`. A static
+/// page, so it needs no token; it passes its own `?access_token=` on to the stream.
+async fn viewer() -> Response {
+    (
+        [
+            (
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("text/html; charset=utf-8"),
+            ),
+            (header::CACHE_CONTROL, HeaderValue::from_static("no-cache")),
+        ],
+        include_str!("viewer.html"),
+    )
+        .into_response()
+}
+
 /// `GET /healthz`: 200 while the daemon can serve a light set (status "degraded" when the source
-/// has failed or ended and the last good set is being served), 503 before the first one.
+/// has failed, ended or stalled and the last good set is being served), 503 before the first one.
 async fn healthz(State(state): State<AppState>) -> Response {
     let source = state.hub.health();
     let latest = state.hub.latest();

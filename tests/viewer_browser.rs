@@ -1,0 +1,117 @@
+//! The live view at `GET /` in a real browser: headless Chromium loads the page from the real
+//! daemon (`vemlight serve`, the synthetic sky, a token), whose script connects to `/v1/stream`
+//! with `access_token`, parses LightSets and fills its table. Catches the page and the document
+//! drifting apart (a renamed field leaves the table empty).
+//!
+//! Needs `chromium` (scripts/test.sh installs it and sets `VEMLIGHT_REQUIRE_BROWSER=1`, so CI
+//! always runs this); a plain `cargo test` without it skips with a note.
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+struct Daemon(Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn chromium() -> Option<&'static str> {
+    ["chromium", "chromium-browser", "google-chrome"]
+        .into_iter()
+        .find(|b| {
+            Command::new(b)
+                .arg("--version")
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
+}
+
+#[test]
+fn the_live_view_shows_streamed_lights() {
+    let Some(browser) = chromium() else {
+        assert!(
+            std::env::var_os("VEMLIGHT_REQUIRE_BROWSER").is_none(),
+            "VEMLIGHT_REQUIRE_BROWSER is set but no chromium is installed"
+        );
+        eprintln!("skipped: no chromium on PATH (scripts/test.sh installs it)");
+        return;
+    };
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let base = format!("127.0.0.1:{port}");
+    let _daemon = Daemon(
+        Command::new(env!("CARGO_BIN_EXE_vemlight"))
+            .args([
+                "serve",
+                "--bind",
+                &base,
+                "--sky-size",
+                "256x128",
+                "--token",
+                "t0k",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starts the daemon"),
+    );
+    // Wait for the first light set.
+    let start = Instant::now();
+    loop {
+        let up = std::net::TcpStream::connect(&base).is_ok_and(|mut s| {
+            use std::io::{Read, Write};
+            let _ = s.write_all(b"GET /healthz HTTP/1.0\r\n\r\n");
+            let mut reply = String::new();
+            let _ = s.read_to_string(&mut reply);
+            reply.starts_with("HTTP/1.1 200") || reply.starts_with("HTTP/1.0 200")
+        });
+        if up {
+            break;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "the daemon did not come up"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let profile = std::env::temp_dir().join(format!("vemlight-chromium-{}", std::process::id()));
+    let out = Command::new(browser)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--no-first-run",
+            &format!("--user-data-dir={}", profile.display()),
+            "--virtual-time-budget=5000",
+            "--dump-dom",
+            &format!("http://{base}/?access_token=t0k"),
+        ])
+        .output()
+        .expect("runs chromium");
+    let _ = std::fs::remove_dir_all(&profile);
+    let dom = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "chromium failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // The script filled the table and the title from real LightSets.
+    assert!(dom.contains(">connected<"), "not connected: {dom}");
+    assert!(
+        dom.contains("<title>vemlight — 64 lights, seq "),
+        "no LightSet reached the page: {dom}"
+    );
+    for cell in [
+        "<td>64 (voronoi, sphere domain)</td>",
+        "<td>synthetic:256x128</td>",
+        "<td>binomial, 9 taps, delay 133 ms</td>",
+    ] {
+        assert!(dom.contains(cell), "the table lacks {cell}: {dom}");
+    }
+}
