@@ -468,31 +468,54 @@ fn decode_exr(
     use exr::prelude::{ReadChannels, ReadLayers, ReadSpecificChannel};
     let meta = check_exr_header(bytes, max_pixels)?;
     let (layer, channels) = exr_channels(&meta)?;
-    let size = meta.headers[layer].layer_size;
-    let (w, h) = (size.width(), size.height());
+    // The map is the display window (the frame a lat-long or fisheye mapping refers to); the
+    // data window's pixels sit in it at their offset, and what lies outside the data window is
+    // black (a sky-only file with the ground left out, say).
+    let header = &meta.headers[layer];
+    let display = header.shared_attributes.display_window;
+    let (w, h) = (display.size.width(), display.size.height());
+    if (w as u64).saturating_mul(h as u64) > max_pixels {
+        return Err(InputError::TooLarge {
+            width: w as u64,
+            height: h as u64,
+            limit: max_pixels,
+        });
+    }
+    let offset = header.own_attributes.layer_position - display.position;
     let projection = projection.unwrap_or_else(|| Projection::guess(w, h));
     projection.check_size(w, h)?;
     let corrupt = |e: exr::error::Error| InputError::Corrupt {
         format: "OpenEXR",
         reason: e.to_string(),
     };
-    // The pixels go straight into the map's buffer; the layer read is the first that has the
-    // channels, the one `exr_channels` sized.
-    fn create<D>(size: exr::math::Vec2<usize>, _: &D) -> (usize, Vec<[f32; 3]>) {
-        (size.width(), vec![[0.0f32; 3]; size.area()])
-    }
+    // The pixels go straight into the map's buffer.
+    let create = |_: exr::math::Vec2<usize>| vec![[0.0f32; 3]; w * h];
+    let place = move |at: exr::math::Vec2<usize>| {
+        let (x, y) = (
+            at.x() as i64 + offset.x() as i64,
+            at.y() as i64 + offset.y() as i64,
+        );
+        ((0..w as i64).contains(&x) && (0..h as i64).contains(&y))
+            .then(|| y as usize * w + x as usize)
+    };
     let read = exr::prelude::read()
         .no_deep_data()
         .largest_resolution_level()
         .specific_channels();
-    let (width, pixels) = match channels {
+    // The layer read is the first that has the channels, the one `exr_channels` picked.
+    let pixels = match channels {
         ExrChannels::Rgb([r, g, b]) => {
             read.required(r.as_str())
                 .required(g.as_str())
                 .required(b.as_str())
-                .collect_pixels(create, |(w, px), at, (r, g, b): (f32, f32, f32)| {
-                    px[at.y() * *w + at.x()] = [r, g, b]
-                })
+                .collect_pixels(
+                    move |size, _| create(size),
+                    move |px: &mut Vec<[f32; 3]>, at, (r, g, b): (f32, f32, f32)| {
+                        if let Some(i) = place(at) {
+                            px[i] = [r, g, b];
+                        }
+                    },
+                )
                 .first_valid_layer()
                 .all_attributes()
                 .from_buffered(Cursor::new(bytes))
@@ -503,9 +526,14 @@ fn decode_exr(
         }
         ExrChannels::Luminance(y) => {
             read.required(y.as_str())
-                .collect_pixels(create, |(w, px), at, (y,): (f32,)| {
-                    px[at.y() * *w + at.x()] = [y; 3]
-                })
+                .collect_pixels(
+                    move |size, _| create(size),
+                    move |px: &mut Vec<[f32; 3]>, at, (y,): (f32,)| {
+                        if let Some(i) = place(at) {
+                            px[i] = [y; 3];
+                        }
+                    },
+                )
                 .first_valid_layer()
                 .all_attributes()
                 .from_buffered(Cursor::new(bytes))
@@ -515,12 +543,6 @@ fn decode_exr(
                 .pixels
         }
     };
-    if width != w || pixels.len() != w * h {
-        return Err(InputError::Corrupt {
-            format: "OpenEXR",
-            reason: "the layer read is not the one sized".into(),
-        });
-    }
     EnvMap::from_pixels(w, h, pixels, projection)
 }
 
@@ -903,5 +925,48 @@ mod tests {
             Err(InputError::Unusable(m)) => assert!(m.contains("luminance/chroma"), "{m}"),
             other => panic!("{other:?}"),
         }
+    }
+
+    /// The map is the display window: a sky-only file (data window = the upper half of a 2:1
+    /// display window) decodes to the whole 2:1 lat-long map with a black ground, and data outside
+    /// the display window is cut off.
+    #[test]
+    fn exr_data_window_sits_in_the_display_window() {
+        use exr::prelude::*;
+        let write = |data_origin: (i32, i32), data_size: (usize, usize)| {
+            let channels =
+                SpecificChannels::rgb(|p: Vec2<usize>| (1.0 + p.x() as f32, 2.0f32, 3.0f32));
+            let mut layer = Layer::new(
+                data_size,
+                LayerAttributes::default(),
+                Encoding::FAST_LOSSLESS,
+                channels,
+            );
+            layer.attributes.layer_position = Vec2(data_origin.0, data_origin.1);
+            let image = Image {
+                attributes: ImageAttributes::new(IntegerBounds::new((0, 0), (16, 8))),
+                layer_data: layer,
+            };
+            let mut out = Cursor::new(Vec::new());
+            image.write().to_buffered(&mut out).expect("writes");
+            EnvMap::decode(&out.into_inner(), None, DEFAULT_MAX_PIXELS).expect("decodes")
+        };
+        let sky = write((0, 0), (16, 4));
+        assert_eq!(
+            (sky.width, sky.height, sky.projection),
+            (16, 8, Projection::LatLong)
+        );
+        assert_eq!(sky.pixels[3], [4.0, 2.0, 3.0]);
+        assert!(
+            sky.pixels[16 * 4..].iter().all(|p| *p == [0.0; 3]),
+            "black ground"
+        );
+        // Shifted 10 right and 2 up: columns 10..16 of rows 0..2 hold data columns 0..6 of rows 2..4.
+        let shifted = write((10, -2), (16, 4));
+        assert_eq!((shifted.width, shifted.height), (16, 8));
+        assert_eq!(shifted.pixels[10], [1.0, 2.0, 3.0]);
+        assert_eq!(shifted.pixels[15 + 16], [6.0, 2.0, 3.0]);
+        assert_eq!(shifted.pixels[9], [0.0; 3]);
+        assert!(shifted.pixels[16 * 2..].iter().all(|p| *p == [0.0; 3]));
     }
 }
