@@ -11,7 +11,7 @@ pub mod stream;
 pub use error::ApiError;
 
 use crate::capture::pipeline::Hub;
-use crate::envmap::{EnvMap, Projection};
+use crate::envmap::{Decoding, EnvMap, Projection};
 use crate::lights::{Extractor, Method};
 use crate::lightset::{LightRequest, lightset_for_map, now_ns};
 use crate::metrics::Metrics;
@@ -463,7 +463,8 @@ async fn post_lights_inner(
     let max_pixels = uploads.max_pixels;
     let set = tokio::task::spawn_blocking(move || -> Result<_, ApiError> {
         let t = Instant::now();
-        let map = EnvMap::decode(&bytes, projection, max_pixels)?;
+        // Uploads run `--post-workers` at a time already: one thread each (see `Decoding`).
+        let map = EnvMap::decode_with(&bytes, projection, max_pixels, Decoding::OneThread)?;
         let decode_ms = t.elapsed().as_secs_f64() * 1e3;
         let mut ex = uploads
             .extractors
