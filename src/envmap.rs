@@ -515,11 +515,9 @@ fn decode_exr(
         .largest_resolution_level()
         .specific_channels();
     // The layer read is the first that has the channels, the one `exr_channels` picked.
-    let one_thread = decoding == Decoding::OneThread;
     let pixels = match channels {
-        ExrChannels::Rgb([r, g, b]) => {
-            let reader = read
-                .required(r.as_str())
+        ExrChannels::Rgb([r, g, b]) => read_exr_pixels(
+            read.required(r.as_str())
                 .required(g.as_str())
                 .required(b.as_str())
                 .collect_pixels(
@@ -531,22 +529,12 @@ fn decode_exr(
                     },
                 )
                 .first_valid_layer()
-                .all_attributes();
-            let reader = if one_thread {
-                reader.non_parallel()
-            } else {
-                reader
-            };
-            reader
-                .from_buffered(Cursor::new(bytes))
-                .map_err(corrupt)?
-                .layer_data
-                .channel_data
-                .pixels
-        }
-        ExrChannels::Luminance(y) => {
-            let reader = read
-                .required(y.as_str())
+                .all_attributes(),
+            decoding,
+            bytes,
+        ),
+        ExrChannels::Luminance(y) => read_exr_pixels(
+            read.required(y.as_str())
                 .collect_pixels(
                     move |size, _| create(size),
                     move |px: &mut Vec<[f32; 3]>, at, (y,): (f32,)| {
@@ -556,21 +544,34 @@ fn decode_exr(
                     },
                 )
                 .first_valid_layer()
-                .all_attributes();
-            let reader = if one_thread {
-                reader.non_parallel()
-            } else {
-                reader
-            };
-            reader
-                .from_buffered(Cursor::new(bytes))
-                .map_err(corrupt)?
-                .layer_data
-                .channel_data
-                .pixels
-        }
-    };
+                .all_attributes(),
+            decoding,
+            bytes,
+        ),
+    }
+    .map_err(corrupt)?;
     EnvMap::from_pixels(w, h, pixels, projection)
+}
+
+/// Runs a prepared exr reader whose pixels are collected into one `Vec<[f32; 3]>`, on a pool
+/// of threads or on this one.
+fn read_exr_pixels<L, C>(
+    reader: exr::image::read::image::ReadImage<fn(f64), L>,
+    decoding: Decoding,
+    bytes: &[u8],
+) -> exr::error::Result<Vec<[f32; 3]>>
+where
+    for<'s> L: exr::image::read::image::ReadLayers<
+            's,
+            Layers = exr::image::Layer<exr::image::SpecificChannels<Vec<[f32; 3]>, C>>,
+        >,
+{
+    let reader = match decoding {
+        Decoding::Parallel => reader,
+        Decoding::OneThread => reader.non_parallel(),
+    };
+    let image = reader.from_buffered(Cursor::new(bytes))?;
+    Ok(image.layer_data.channel_data.pixels)
 }
 
 /// How an EXR's chunks are decompressed.
