@@ -129,6 +129,43 @@ async fn start_default(fps: f64) -> Server {
     start(MemorySource::new(frames, fps), None, 64 << 20).await
 }
 
+/// Polls `GET {base}/healthz` every 50 ms until `done` accepts a document or `limit` passes;
+/// returns the last document.
+async fn poll_health(
+    c: &reqwest::Client,
+    base: &str,
+    limit: Duration,
+    mut done: impl FnMut(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let mut health = serde_json::Value::Null;
+    for _ in 0..limit.as_millis() / 50 {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        health = c
+            .get(format!("{base}/healthz"))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        if done(&health) {
+            break;
+        }
+    }
+    health
+}
+
+/// `GET {base}/metrics` as text.
+async fn metrics_text(c: &reqwest::Client, base: &str) -> String {
+    c.get(format!("{base}/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap()
+}
+
 type Ws =
     tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
@@ -282,14 +319,8 @@ async fn a_hundred_clients_all_receive() {
         assert_eq!(a["lights"].as_array().unwrap().len(), n);
         assert!(b["seq"].as_u64() > a["seq"].as_u64());
     }
-    let metrics = || async {
-        reqwest::get(format!("http://{}/metrics", s.addr))
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap()
-    };
+    let (c, base) = (reqwest::Client::new(), format!("http://{}", s.addr));
+    let metrics = || metrics_text(&c, &base);
     let m = metrics().await;
     assert!(m.contains("vemlight_ws_clients 100"), "{m}");
 
@@ -475,14 +506,7 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
         .await
         .unwrap();
     assert_eq!(h.status(), 200);
-    let m = c
-        .get(format!("http://{}/metrics", s.addr))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let m = metrics_text(&c, &format!("http://{}", s.addr)).await;
     assert!(m.contains("vemlight_http_lights_errors_total 13"), "{m}");
     assert!(m.contains("\nvemlight_source_up 1\n"), "{m}");
 }
@@ -699,22 +723,12 @@ async fn a_stalled_source_is_reported() {
     let s = start(src, None, 64 << 20).await;
     let c = reqwest::Client::new();
     let url = format!("http://{}", s.addr);
-    let (mut seen_ok, mut health) = (false, serde_json::Value::Null);
-    for _ in 0..120 {
-        tokio::time::sleep(Duration::from_millis(50)).await;
-        health = c
-            .get(format!("{url}/healthz"))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
-        seen_ok |= health["status"] == "ok";
-        if health["source"]["stalled"] == true {
-            break;
-        }
-    }
+    let mut seen_ok = false;
+    let health = poll_health(&c, &url, Duration::from_secs(6), |h| {
+        seen_ok |= h["status"] == "ok";
+        h["source"]["stalled"] == true
+    })
+    .await;
     assert!(seen_ok, "healthy while frames came");
     assert_eq!(health["source"]["stalled"], true, "{health}");
     assert_eq!(health["source"]["state"], "running");
@@ -722,14 +736,7 @@ async fn a_stalled_source_is_reported() {
     assert_eq!(health["serving_last_good_lightset"], true);
     assert_eq!(health["source"]["stall_after_s"], 2.0);
     assert!(health["source"]["last_frame_age_s"].as_f64().unwrap() >= 2.0);
-    let m = c
-        .get(format!("{url}/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let m = metrics_text(&c, &url).await;
     assert!(m.contains("\nvemlight_source_up 0\n"), "{m}");
     let age: f64 = m
         .lines()
@@ -756,21 +763,10 @@ async fn source_failures_are_reported_and_the_last_set_is_served() {
     let s = start(src, None, 64 << 20).await;
     let c = reqwest::Client::new();
     let url = format!("http://{}", s.addr);
-    let mut health = serde_json::Value::Null;
-    for _ in 0..100 {
-        tokio::time::sleep(Duration::from_millis(50)).await;
-        health = c
-            .get(format!("{url}/healthz"))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
-        if health["source"]["state"] == "ended" {
-            break;
-        }
-    }
+    let health = poll_health(&c, &url, Duration::from_secs(5), |h| {
+        h["source"]["state"] == "ended"
+    })
+    .await;
     assert_eq!(health["source"]["state"], "ended", "{health}");
     assert_eq!(health["status"], "degraded");
     assert_eq!(health["serving_last_good_lightset"], true);
@@ -788,14 +784,7 @@ async fn source_failures_are_reported_and_the_last_set_is_served() {
     assert_eq!(latest.status(), 200);
     let doc: serde_json::Value = latest.json().await.unwrap();
     assert_valid(&lightset_validator(), &doc);
-    let m = c
-        .get(format!("{url}/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let m = metrics_text(&c, &url).await;
     assert!(m.contains("vemlight_source_errors_total 1"), "{m}");
     assert!(m.contains("vemlight_frames_captured_total 9"), "{m}");
     // A new subscriber still gets the last good set at once.
@@ -910,19 +899,10 @@ async fn serve_reads_raw_frames_from_stdin() {
     }
     drop(stdin); // end of stream
     let c = reqwest::Client::new();
-    let mut health = serde_json::Value::Null;
-    for _ in 0..100 {
-        tokio::time::sleep(Duration::from_millis(50)).await;
-        let r = c
-            .get(format!("http://{addr}/healthz"))
-            .send()
-            .await
-            .unwrap();
-        health = r.json().await.unwrap();
-        if health["source"]["state"] == "ended" && health["latest_frame"] == 2 {
-            break;
-        }
-    }
+    let health = poll_health(&c, &format!("http://{addr}"), Duration::from_secs(5), |h| {
+        h["source"]["state"] == "ended" && h["latest_frame"] == 2
+    })
+    .await;
     assert_eq!(health["source"]["state"], "ended", "{health}");
     assert_eq!(health["source"]["frames_captured"], 3);
     let doc: serde_json::Value = c
