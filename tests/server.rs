@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{assert_valid, data_path, lightset_validator, load};
+use common::{assert_valid, data_path, lightset_validator, load, spawn_serve};
 use futures_util::StreamExt;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -804,40 +804,6 @@ async fn source_failures_are_reported_and_the_last_set_is_served() {
     .await
     .unwrap();
     assert_eq!(end, Some(1001));
-}
-
-/// Starts `vemlight serve --bind 127.0.0.1:0 ARGS` (stdin piped) and reads the address it
-/// listens on from its log.
-fn spawn_serve(args: &[&str]) -> (std::process::Child, SocketAddr) {
-    use std::io::BufRead;
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["serve", "--bind", "127.0.0.1:0"])
-        .args(args)
-        .env("RUST_LOG", "info")
-        .env("NO_COLOR", "1")
-        .stdin(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        for line in std::io::BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-        {
-            let _ = tx.send(line);
-        }
-    });
-    let addr = loop {
-        let line = rx
-            .recv_timeout(Duration::from_secs(20))
-            .expect("a startup line");
-        if let Some(rest) = line.split("serving on http://").nth(1) {
-            break rest.split_whitespace().next().unwrap().parse().unwrap();
-        }
-    };
-    (child, addr)
 }
 
 /// The main job as a user runs it: `vemlight serve` on the built-in synthetic sky streams valid

@@ -6,7 +6,9 @@
 //! Needs `chromium` (scripts/test.sh installs it and sets `VEMLIGHT_REQUIRE_BROWSER=1`, so CI
 //! always runs this); a plain `cargo test` without it skips with a note.
 
-use std::process::{Child, Command, Stdio};
+mod common;
+
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 struct Daemon(Child);
@@ -39,41 +41,15 @@ fn the_live_view_shows_streamed_lights() {
         eprintln!("skipped: no chromium on PATH (scripts/test.sh installs it)");
         return;
     };
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let base = format!("127.0.0.1:{port}");
-    let _daemon = Daemon(
-        Command::new(env!("CARGO_BIN_EXE_vemlight"))
-            .args([
-                "serve",
-                "--bind",
-                &base,
-                "--sky-size",
-                "256x128",
-                "--token",
-                "t0k",
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("starts the daemon"),
-    );
-    // Wait for the first light set.
+    let (child, addr) = common::spawn_serve(&["--sky-size", "256x128", "--token", "t0k"]);
+    let _daemon = Daemon(child);
+    // Wait for the first light set: `vemlight healthcheck` passes once /healthz says 200.
     let start = Instant::now();
-    loop {
-        let up = std::net::TcpStream::connect(&base).is_ok_and(|mut s| {
-            use std::io::{Read, Write};
-            let _ = s.write_all(b"GET /healthz HTTP/1.0\r\n\r\n");
-            let mut reply = String::new();
-            let _ = s.read_to_string(&mut reply);
-            reply.starts_with("HTTP/1.1 200") || reply.starts_with("HTTP/1.0 200")
-        });
-        if up {
-            break;
-        }
+    while !Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(["healthcheck", &addr.to_string()])
+        .output()
+        .is_ok_and(|o| o.status.success())
+    {
         assert!(
             start.elapsed() < Duration::from_secs(20),
             "the daemon did not come up"
@@ -90,7 +66,7 @@ fn the_live_view_shows_streamed_lights() {
             &format!("--user-data-dir={}", profile.display()),
             "--virtual-time-budget=5000",
             "--dump-dom",
-            &format!("http://{base}/?access_token=t0k"),
+            &format!("http://{addr}/?access_token=t0k"),
         ])
         .output()
         .expect("runs chromium");
