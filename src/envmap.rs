@@ -486,20 +486,9 @@ fn decode_exr(
     let header = &meta.headers[layer];
     let display = header.shared_attributes.display_window;
     let (w, h) = (display.size.width(), display.size.height());
-    if (w as u64).saturating_mul(h as u64) > max_pixels {
-        return Err(InputError::TooLarge {
-            width: w as u64,
-            height: h as u64,
-            limit: max_pixels,
-        });
-    }
     let offset = header.own_attributes.layer_position - display.position;
     let projection = projection.unwrap_or_else(|| Projection::guess(w, h));
     projection.check_size(w, h)?;
-    let corrupt = |e: exr::error::Error| InputError::Corrupt {
-        format: "OpenEXR",
-        reason: e.to_string(),
-    };
     // The pixels go straight into the map's buffer.
     let create = |_: exr::math::Vec2<usize>| vec![[0.0f32; 3]; w * h];
     let place = move |at: exr::math::Vec2<usize>| {
@@ -549,7 +538,7 @@ fn decode_exr(
             bytes,
         ),
     }
-    .map_err(corrupt)?;
+    .map_err(exr_corrupt)?;
     EnvMap::from_pixels(w, h, pixels, projection)
 }
 
@@ -655,48 +644,44 @@ fn exr_channels(meta: &exr::meta::MetaData) -> Result<(usize, ExrChannels), Inpu
     )))
 }
 
-/// Reads only the OpenEXR headers (no offset tables, no pixels) and refuses any layer larger than
+/// Reads only the OpenEXR headers (no offset tables, no pixels) and refuses any layer whose data or display window is larger than
 /// `max_pixels`, before a decoder sizes its buffers from a header that may lie; then checks the
 /// DWA chunks' counters (see [`check_dwa_chunks`]).
 fn check_exr_header(bytes: &[u8], max_pixels: u64) -> Result<exr::meta::MetaData, InputError> {
-    let corrupt = |e: exr::error::Error| InputError::Corrupt {
-        format: "OpenEXR",
-        reason: e.to_string(),
-    };
+    // Unvalidated, so an oversized header is reported as too large (413), not as invalid.
     let meta =
-        exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(corrupt)?;
+        exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(exr_corrupt)?;
     for header in &meta.headers {
-        let size = header.layer_size;
-        let (width, height) = (size.width() as u64, size.height() as u64);
-        if width.saturating_mul(height) > max_pixels {
-            return Err(InputError::TooLarge {
-                width,
-                height,
-                limit: max_pixels,
-            });
+        let display = header.shared_attributes.display_window.size;
+        for size in [header.layer_size, display] {
+            let (width, height) = (size.width() as u64, size.height() as u64);
+            if width.saturating_mul(height) > max_pixels {
+                return Err(InputError::TooLarge {
+                    width,
+                    height,
+                    limit: max_pixels,
+                });
+            }
         }
     }
-    let dwa = |c: exr::compression::Compression| {
-        matches!(
-            c,
-            exr::compression::Compression::DWAA(_) | exr::compression::Compression::DWAB(_)
-        )
-    };
-    if meta.headers.iter().any(|h| dwa(h.compression)) {
-        check_dwa_chunks(bytes, &meta.headers).map_err(|e| match e {
-            DwaCheck::Read(e) => corrupt(e),
-            DwaCheck::Counter(reason) => InputError::Corrupt {
-                format: "OpenEXR",
-                reason,
-            },
-        })?;
+    if meta.headers.iter().any(|h| is_dwa(h.compression)) {
+        check_dwa_chunks(bytes, &meta.headers)?;
     }
     Ok(meta)
 }
 
-enum DwaCheck {
-    Read(exr::error::Error),
-    Counter(String),
+fn exr_corrupt(e: exr::error::Error) -> InputError {
+    InputError::Corrupt {
+        format: "OpenEXR",
+        reason: e.to_string(),
+    }
+}
+
+fn is_dwa(c: exr::compression::Compression) -> bool {
+    matches!(
+        c,
+        exr::compression::Compression::DWAA(_) | exr::compression::Compression::DWAB(_)
+    )
 }
 
 /// Every DWAA/DWAB chunk's leader (eleven little-endian u64 counters: version, unknown raw and
@@ -705,19 +690,20 @@ enum DwaCheck {
 /// from these counters, checked only against i64::MAX: one flipped bit in a shared map made it
 /// ask for 2^57 bytes, which aborts the process (an allocation failure is not a panic), so a
 /// corrupt upload would have stopped the daemon.
-fn check_dwa_chunks(bytes: &[u8], headers: &[exr::meta::header::Header]) -> Result<(), DwaCheck> {
+fn check_dwa_chunks(bytes: &[u8], headers: &[exr::meta::header::Header]) -> Result<(), InputError> {
     use exr::block::chunk::CompressedBlock;
     let reader = exr::block::reader::Reader::read_from_buffered(Cursor::new(bytes), false)
-        .map_err(DwaCheck::Read)?;
-    for chunk in reader.all_chunks(false).map_err(DwaCheck::Read)? {
-        let chunk = chunk.map_err(DwaCheck::Read)?;
+        .map_err(exr_corrupt)?;
+    let refuse = |reason: String| InputError::Corrupt {
+        format: "OpenEXR",
+        reason,
+    };
+    for chunk in reader.all_chunks(false).map_err(exr_corrupt)? {
+        let chunk = chunk.map_err(exr_corrupt)?;
         let Some(header) = headers.get(chunk.layer_index) else {
-            return Err(DwaCheck::Counter("a chunk names a missing layer".into()));
+            return Err(refuse("a chunk names a missing layer".into()));
         };
-        if !matches!(
-            header.compression,
-            exr::compression::Compression::DWAA(_) | exr::compression::Compression::DWAB(_)
-        ) {
+        if !is_dwa(header.compression) {
             continue;
         }
         let data = match &chunk.compressed_block {
@@ -728,7 +714,7 @@ fn check_dwa_chunks(bytes: &[u8], headers: &[exr::meta::header::Header]) -> Resu
         let section = header
             .get_block_data_indices(&chunk.compressed_block)
             .and_then(|tile| header.get_absolute_block_pixel_coordinates(tile))
-            .map_err(DwaCheck::Read)?;
+            .map_err(exr_corrupt)?;
         let (block_w, block_h) = (section.size.width(), section.size.height());
         if data.len() == block_w * block_h * header.channels.bytes_per_pixel {
             continue; // stored raw: compressing did not make it smaller
@@ -755,7 +741,7 @@ fn check_dwa_chunks(bytes: &[u8], headers: &[exr::meta::header::Header]) -> Resu
             if let Some(v) = counter(k)
                 && v > limit
             {
-                return Err(DwaCheck::Counter(format!(
+                return Err(refuse(format!(
                     "a DWA chunk's {what} is {v}, more than its {block_w}×{block_h} block can hold ({limit})"
                 )));
             }
