@@ -76,6 +76,13 @@ pub struct SourceHealth {
     pub stall_after_s: f64,
 }
 
+impl SourceHealth {
+    /// Running and not stalled: frames are coming.
+    pub fn delivering(&self) -> bool {
+        self.state == "running" && !self.stalled
+    }
+}
+
 /// How long a running source may go without a good frame before `/healthz` calls it stalled: ten
 /// frame periods, at least 2 s; 5 s for a source with no nominal rate (stdin).
 pub fn stall_after(nominal_fps: f64) -> Duration {

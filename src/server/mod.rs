@@ -278,10 +278,10 @@ async fn viewer() -> Response {
 async fn healthz(State(state): State<AppState>) -> Response {
     let source = state.hub.health();
     let latest = state.hub.latest();
-    let status = match (latest.is_some(), source.state) {
+    let status = match (latest.is_some(), source.delivering()) {
         (false, _) => "starting",
-        (true, "running") if !source.stalled => "ok",
-        (true, _) => "degraded",
+        (true, true) => "ok",
+        (true, false) => "degraded",
     };
     let body = serde_json::json!({
         "status": status,
@@ -306,12 +306,11 @@ async fn metrics(State(state): State<AppState>) -> Response {
     use std::fmt::Write;
     let mut text = state.hub.metrics.render();
     let source = state.hub.health();
-    let up = source.state == "running" && !source.stalled;
     let _ = writeln!(
         text,
         "# HELP vemlight_source_up Whether the source delivers frames (0: starting, failed, ended or stalled).\n\
          # TYPE vemlight_source_up gauge\nvemlight_source_up {}",
-        u8::from(up)
+        u8::from(source.delivering())
     );
     if let Some(p) = state.hub.latest() {
         let _ = writeln!(
