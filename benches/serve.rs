@@ -16,11 +16,12 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
-use vemlight::capture::FrameSource;
 use vemlight::capture::files::FileSource;
 use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
+use vemlight::capture::stdin::{RawPixel, RawSource};
 use vemlight::capture::synthetic::{SyntheticConfig, SyntheticSky};
-use vemlight::envmap::DEFAULT_MAX_PIXELS;
+use vemlight::capture::{FrameSource, pace};
+use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use vemlight::eval::speed::median;
 use vemlight::lights::{Extractor, Method};
 use vemlight::lightset::{LightSet, now_ns};
@@ -39,11 +40,53 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[k]
 }
 
-async fn start_server(fps: f64, cfg: PipelineConfig) -> (std::net::SocketAddr, Arc<Hub>) {
-    let source = FileSource::open(std::path::Path::new(MAP), None, DEFAULT_MAX_PIXELS, fps)
+/// Where the benchmarked daemon's frames come from.
+#[derive(Clone, Copy, PartialEq)]
+enum Feed {
+    /// sunrise.exr re-emitted at the frame rate: each frame lands whole.
+    File,
+    /// The same map as raw rgbf32le frames written into a pipe at the frame rate by another
+    /// thread, as a camera pipeline (`ffmpeg … | vemlight serve --source stdin`) feeds the
+    /// daemon: each frame is read and resampled a batch of rows at a time as it arrives.
+    Pipe,
+}
+
+/// Writes `map` as raw rgbf32le frames into `pipe` at `fps` until the reader goes away.
+fn write_frames(mut pipe: std::io::PipeWriter, map: &EnvMap, fps: f64) {
+    use std::io::Write;
+    let bytes: Vec<u8> = map
+        .pixels
+        .iter()
+        .flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes()))
+        .collect();
+    let mut next = Instant::now();
+    loop {
+        pace(&mut next, fps);
+        if pipe.write_all(&bytes).is_err() {
+            return;
+        }
+    }
+}
+
+async fn start_server(
+    fps: f64,
+    cfg: PipelineConfig,
+    feed: Feed,
+) -> (std::net::SocketAddr, Arc<Hub>) {
+    let file = FileSource::open(std::path::Path::new(MAP), None, DEFAULT_MAX_PIXELS, fps)
         .expect("tests/data/sunrise.exr");
+    let source: Box<dyn FrameSource> = match feed {
+        Feed::File => Box::new(file),
+        Feed::Pipe => {
+            let map = EnvMap::open(std::path::Path::new(MAP), None, DEFAULT_MAX_PIXELS).unwrap();
+            let (reader, writer) = std::io::pipe().unwrap();
+            let (w, h, projection) = (map.width, map.height, map.projection);
+            std::thread::spawn(move || write_frames(writer, &map, fps));
+            Box::new(RawSource::new(reader, w, h, RawPixel::Rgbf32le, projection, "pipe").unwrap())
+        }
+    };
     let hub = Hub::new(64, 16, &source.describe());
-    pipeline::spawn(Box::new(source), hub.clone(), cfg).unwrap();
+    pipeline::spawn(source, hub.clone(), cfg).unwrap();
     let state = AppState::new(
         hub.clone(),
         None,
@@ -362,17 +405,23 @@ fn main() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
         let mut message_len = 0;
-        // The default pipeline, then without the Lloyd steps (`serve --refine 0`).
-        for refine in [PipelineConfig::default().refine, 0] {
+        // The default pipeline, then without the Lloyd steps (`serve --refine 0`), then fed by
+        // a camera pipe.
+        let default_refine = PipelineConfig::default().refine;
+        for (refine, feed) in [(default_refine, Feed::File), (0, Feed::File), (default_refine, Feed::Pipe)] {
             let cfg = PipelineConfig {
                 refine,
                 ..PipelineConfig::default()
             };
-            let (addr, hub) = start_server(30.0, cfg).await;
+            let (addr, hub) = start_server(30.0, cfg, feed).await;
             tokio::time::sleep(Duration::from_secs(1)).await;
             message_len = hub.latest().map_or(message_len, |p| p.json.len());
+            let fed = match feed {
+                Feed::File => "sunrise.exr, whole frames",
+                Feed::Pipe => "sunrise.exr as raw rgbf32le frames through a pipe, by rows",
+            };
             println!(
-                "end-to-end latency, frame captured → LightSet received (64 lights, 30 frames/s, loopback, {refine} Lloyd steps)"
+                "end-to-end latency, frame captured → LightSet received (64 lights, 30 frames/s, loopback, {refine} Lloyd steps; {fed})"
             );
             for clients in [1, 100] {
                 let before = hub.metrics.ws_delivery.snapshot();
@@ -423,7 +472,7 @@ fn main() {
         }
         drop(bare);
 
-        let (addr, hub) = start_server(1.0, PipelineConfig::default()).await;
+        let (addr, hub) = start_server(1.0, PipelineConfig::default(), Feed::File).await;
         let (rps, mut times) = post_throughput(addr, 4, 10.0).await;
         println!(
             "POST /v1/lights, 1024x512 DWAB EXR, 64 lights, 4 concurrent clients: {rps:.1} requests/s, median {:.1} ms per request",

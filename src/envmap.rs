@@ -226,6 +226,13 @@ impl InputRepairs {
     pub fn clamped_pixels(&self) -> u64 {
         self.changed_pixels
     }
+
+    /// Adds the counts of another part of the same map.
+    pub fn add(&mut self, other: InputRepairs) {
+        self.non_finite_pixels += other.non_finite_pixels;
+        self.negative_pixels += other.negative_pixels;
+        self.changed_pixels += other.changed_pixels;
+    }
 }
 
 /// A decoded environment map: linear RGB radiance, row-major from the top row, with its projection.

@@ -893,6 +893,62 @@ async fn serve_reads_raw_frames_from_stdin() {
     let _ = child.wait();
 }
 
+/// A camera pipe's frames are read and resampled a batch of rows at a time as they arrive: the
+/// daemon's lights for sunrise.exr fed that way as raw frames are the CLI's for the file.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_streamed_by_rows_give_the_lights_of_the_whole_frame() {
+    use std::io::Write;
+    use vemlight::capture::stdin::{RawPixel, RawSource};
+    let map = load("sunrise.exr");
+    let bytes: Vec<u8> = map
+        .pixels
+        .iter()
+        .flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes()))
+        .collect();
+    let (reader, mut writer) = std::io::pipe().unwrap();
+    let source = RawSource::new(
+        reader,
+        map.width,
+        map.height,
+        RawPixel::Rgbf32le,
+        Projection::LatLong,
+        "pipe",
+    )
+    .unwrap();
+    let hub = Hub::new(64, 16, "pipe");
+    let cfg = PipelineConfig {
+        filter: vemlight::temporal::FilterSpec::none(),
+        ..PipelineConfig::default()
+    };
+    pipeline::spawn(Box::new(source), hub.clone(), cfg).unwrap();
+    // Two frames, each written in pieces that do not line up with the source's batches of rows.
+    let writer_thread = std::thread::spawn(move || {
+        for _ in 0..2 {
+            for piece in bytes.chunks(50_001) {
+                writer.write_all(piece).unwrap();
+            }
+        }
+    });
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !(hub.health().state == "ended" && hub.latest().is_some_and(|p| p.frame == 1)) {
+        assert!(Instant::now() < deadline, "{:?}", hub.health());
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    writer_thread.join().unwrap();
+    let doc: serde_json::Value = serde_json::from_str(hub.latest().unwrap().json.as_str()).unwrap();
+    assert_valid(&lightset_validator(), &doc);
+    let path = data_path("sunrise.exr");
+    let cli = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(["lights", path.to_str().unwrap(), "--lights", "64"])
+        .output()
+        .unwrap();
+    assert!(cli.status.success());
+    let cli: serde_json::Value = serde_json::from_slice(&cli.stdout).unwrap();
+    assert_eq!(doc["lights"], cli["lights"], "lights differ from the CLI's");
+    assert_eq!(doc["sh9"], cli["sh9"]);
+    assert_eq!(doc["total_irradiance"], cli["total_irradiance"]);
+}
+
 /// A source faster than extraction: frames are dropped (newest wins) and counted, and every
 /// captured frame is either processed or dropped.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -5,10 +5,11 @@
 //! frames on stdin). Output: filtered LightSet documents, published per light count on `watch` channels
 //! (latest-state semantics: a slow reader skips frames and never holds up the capture loop).
 //!
-//! Threads: one reads frames into a one-slot mailbox (a frame not yet taken when the next arrives
-//! is dropped and counted); one takes the newest frame, extracts lights for every light count
-//! clients ask for (one resampling and warp shared by all), filters each id over time and
-//! publishes.
+//! Threads: one reads frames and resamples each into the domain square (a streaming source's, such
+//! as a camera pipe's, a batch of rows at a time as they arrive, so that little is left when the
+//! last row is in), into a one-slot mailbox (a frame not yet taken when the next arrives is dropped
+//! and counted); one takes the newest frame, extracts lights for every light count clients ask for
+//! (one warp shared by all), filters each id over time and publishes.
 
 pub mod files;
 pub mod pipeline;
@@ -40,6 +41,23 @@ pub trait FrameSource: Send {
     /// Blocks until the next frame is due and writes it into `out` (reusing its buffer where it can).
     /// `Ok(false)`: the source has ended normally (end of a non-looping sequence, stdin closed).
     fn next_frame(&mut self, out: &mut EnvMap) -> Result<bool, SourceError>;
+
+    /// As [`next_frame`](Self::next_frame), but calls `rows(out, range)` as soon as those rows of
+    /// `out` are final (in order, together covering the frame, with `out`'s size set and its
+    /// pixel buffer full-sized), so that work on a frame can start while the rest of it arrives.
+    /// The daemon resamples each batch as it lands, and a frame counts as captured when its last
+    /// rows are in. The default hands over the whole frame at once.
+    fn next_frame_by_rows(
+        &mut self,
+        out: &mut EnvMap,
+        rows: &mut dyn FnMut(&EnvMap, std::ops::Range<usize>),
+    ) -> Result<bool, SourceError> {
+        let got = self.next_frame(out)?;
+        if got {
+            rows(out, 0..out.height);
+        }
+        Ok(got)
+    }
 
     /// A short description for `/healthz` and the LightSet's `source` field.
     fn describe(&self) -> String;

@@ -6,9 +6,10 @@ use crate::envmap::{EnvMap, Projection};
 use crate::lights::{Extractor, Method};
 use crate::lightset::{LightSet, Timings, default_domain, now_ns};
 use crate::metrics::Metrics;
-use crate::sampling::{Domain, N_MAX};
+use crate::sampling::{Domain, DomainImage, N_MAX, Resampler};
 use crate::temporal::{FilterInfo, FilterSpec, TemporalFilter};
 use std::collections::{BTreeMap, HashMap};
+use std::ops::Range;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
@@ -249,11 +250,16 @@ impl Hub {
     }
 }
 
-/// A captured frame waiting for processing.
+/// A captured frame waiting for processing, already resampled into the domain square.
 struct Frame {
     map: EnvMap,
+    image: DomainImage,
+    domain: Domain,
+    /// Resampling time after the frame's last rows arrived (all of it for a whole-frame source).
+    resample_tail: Duration,
     index: u64,
     t_capture_ns: u64,
+    /// When the frame's last rows were in (the start of its end-to-end latency).
     captured_at: Instant,
 }
 
@@ -268,8 +274,9 @@ struct Mailbox {
 struct MailboxState {
     frame: Option<Frame>,
     closed: bool,
-    /// Maps handed back by the processing thread for reuse.
+    /// Maps and images handed back by the processing thread for reuse.
     spare: Vec<EnvMap>,
+    spare_images: Vec<DomainImage>,
 }
 
 /// Starts the capture and processing threads. They run until the source ends (processing stops
@@ -284,10 +291,10 @@ pub fn spawn(
     let source_name = source.describe();
     hub.set_health(|h| h.stall_after = stall_after(fps));
 
-    let (mb, h) = (mailbox.clone(), hub.clone());
+    let (mb, h, c) = (mailbox.clone(), hub.clone(), cfg.clone());
     std::thread::Builder::new()
         .name("vemlight-capture".into())
-        .spawn(move || capture_loop(source.as_mut(), &h, &mb))?;
+        .spawn(move || capture_loop(source.as_mut(), &h, &mb, &c))?;
 
     std::thread::Builder::new()
         .name("vemlight-extract".into())
@@ -295,8 +302,58 @@ pub fn spawn(
     Ok(())
 }
 
-fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox) {
+/// Resamples each frame into the domain square on the capture thread, batch by batch as a
+/// streaming source's rows arrive ([`FrameSource::next_frame_by_rows`]), so that the processing
+/// thread starts from the image; a whole-frame source is resampled on `cfg.threads` threads.
+struct CaptureResampler {
+    domain: Option<Domain>,
+    threads: usize,
+    resampler: Option<Resampler>,
+}
+
+impl CaptureResampler {
+    /// Takes the rows `rows` of `map`, which arrived just now; returns the frame's domain once
+    /// its last rows are in.
+    fn rows(&mut self, map: &EnvMap, rows: Range<usize>, image: &mut DomainImage) -> Domain {
+        let domain = self
+            .domain
+            .unwrap_or_else(|| default_domain(&map.projection));
+        if rows.start == 0
+            && !self
+                .resampler
+                .as_ref()
+                .is_some_and(|r| r.fits(map, domain, None))
+        {
+            let mut r = Resampler::new(map.projection, map.width, map.height, domain, None);
+            r.set_threads(self.threads);
+            self.resampler = Some(r);
+        }
+        let r = self
+            .resampler
+            .as_mut()
+            .expect("made on a frame's first rows");
+        if rows.start == 0 && rows.end == map.height {
+            r.resample_into(map, image);
+            return domain;
+        }
+        if rows.start == 0 {
+            r.begin_rows(image);
+        }
+        r.add_rows(map, rows.clone(), image);
+        if rows.end == map.height {
+            r.finish_rows(image);
+        }
+        domain
+    }
+}
+
+fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig) {
     let mut index = 0u64;
+    let mut resampler = CaptureResampler {
+        domain: cfg.domain,
+        threads: cfg.threads,
+        resampler: None,
+    };
     let blank = || EnvMap {
         width: 0,
         height: 0,
@@ -305,15 +362,36 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox) {
         repairs: Default::default(),
     };
     while !hub.is_shut_down() {
-        let mut map = {
+        let (mut map, mut image) = {
             let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
-            s.spare.pop().unwrap_or_else(blank)
+            let map = s.spare.pop().unwrap_or_else(blank);
+            (map, s.spare_images.pop().unwrap_or_else(DomainImage::empty))
         };
         let t = Instant::now();
-        let result = source.next_frame(&mut map);
+        // (when the last rows were in, its wall-clock time, the frame's domain, the resampling
+        // after that)
+        let mut complete: Option<(Instant, u64, Domain, Duration)> = None;
+        let result = source.next_frame_by_rows(&mut map, &mut |m, rows| {
+            let last = rows.end == m.height;
+            let (arrived, arrived_ns) = (Instant::now(), now_ns());
+            let domain = resampler.rows(m, rows, &mut image);
+            if last {
+                complete = Some((arrived, arrived_ns, domain, arrived.elapsed()));
+            }
+        });
         hub.metrics.stage_capture.record(t.elapsed());
         match result {
             Ok(true) => {
+                let Some((captured_at, t_capture_ns, domain, resample_tail)) = complete else {
+                    // A source that broke the contract (no last rows): nothing to process.
+                    tracing::error!("the source returned a frame without its last rows");
+                    Metrics::inc(&hub.metrics.source_errors);
+                    let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
+                    s.spare.push(map);
+                    s.spare_images.push(image);
+                    continue;
+                };
+                hub.metrics.stage_resample.record(resample_tail);
                 Metrics::inc(&hub.metrics.frames_captured);
                 hub.set_health(|h| {
                     h.state = "running";
@@ -322,15 +400,19 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox) {
                 });
                 let frame = Frame {
                     map,
+                    image,
+                    domain,
+                    resample_tail,
                     index,
-                    t_capture_ns: now_ns(),
-                    captured_at: Instant::now(),
+                    t_capture_ns,
+                    captured_at,
                 };
                 index += 1;
                 let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
                 if let Some(old) = s.frame.replace(frame) {
                     Metrics::inc(&hub.metrics.frames_dropped);
                     s.spare.push(old.map);
+                    s.spare_images.push(old.image);
                 }
                 mailbox.ready.notify_one();
             }
@@ -343,12 +425,9 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox) {
                 Metrics::inc(&hub.metrics.source_errors);
                 tracing::warn!("skipping a bad frame: {e}");
                 hub.set_health(|h| h.last_error = Some(e));
-                mailbox
-                    .slot
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .spare
-                    .push(map);
+                let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
+                s.spare.push(map);
+                s.spare_images.push(image);
             }
             Err(SourceError::Fatal(e)) => {
                 Metrics::inc(&hub.metrics.source_errors);
@@ -368,7 +447,6 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox) {
 
 fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, source: &str) {
     let mut extractor = Extractor::new();
-    extractor.set_threads(cfg.threads);
     extractor.set_refine(cfg.refine);
     let mut filters: HashMap<usize, TemporalFilter> = HashMap::new();
     let mut seqs: HashMap<usize, u64> = HashMap::new();
@@ -393,15 +471,20 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
                     .0;
             }
         };
-        let start = Instant::now();
-        let domain = cfg
-            .domain
-            .unwrap_or_else(|| default_domain(&frame.map.projection));
+        let Frame {
+            map,
+            image,
+            domain,
+            resample_tail,
+            index,
+            t_capture_ns,
+            captured_at,
+        } = frame;
         let counts = hub.light_counts();
-        let extractions = extractor.extract_many(&frame.map, domain, cfg.method, &counts);
+        let previous_image = extractor.put_image(image);
+        let extractions = extractor.extract_many_resampled(&map, cfg.method, &counts);
         let m = &hub.metrics;
         if let Some(first) = extractions.first() {
-            m.stage_resample.record_secs(first.timings.resample_s);
             m.stage_warp.record_secs(first.timings.warp_s);
         }
         let t = Instant::now();
@@ -421,18 +504,20 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             let t = Instant::now();
             let seq = seqs.entry(n).or_insert(0);
             *seq += 1;
-            let mut set = LightSet::new(lights, &frame.map, cfg.method, domain, source, n, ex.side);
+            let mut set = LightSet::new(lights, &map, cfg.method, domain, source, n, ex.side);
             set.seq = *seq;
-            set.frame = frame.index;
-            set.t_capture_ns = frame.t_capture_ns;
+            set.frame = index;
+            set.t_capture_ns = t_capture_ns;
             set.sh9 = sh9.clone();
             set.filter = Some(filter_info.clone());
+            // From the frame's last rows in to this document; resampling done while the frame
+            // arrived is not in it.
             set.diagnostics.timings_ms = Timings {
                 decode: 0.0,
-                resample: ex.timings.resample_s * 1e3,
+                resample: resample_tail.as_secs_f64() * 1e3,
                 warp: ex.timings.warp_s * 1e3,
                 assign: ex.timings.assign_s * 1e3,
-                total: start.elapsed().as_secs_f64() * 1e3,
+                total: captured_at.elapsed().as_secs_f64() * 1e3,
             };
             set.t_emit_ns = now_ns();
             match serde_json::to_string(&set) {
@@ -440,9 +525,9 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
                     n,
                     Arc::new(Published {
                         seq: *seq,
-                        frame: frame.index,
-                        t_capture_ns: frame.t_capture_ns,
-                        captured_at: frame.captured_at,
+                        frame: index,
+                        t_capture_ns,
+                        captured_at,
                         json: json.into(),
                     }),
                 ),
@@ -452,11 +537,8 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             m.stage_publish.record(t.elapsed());
         }
         Metrics::inc(&m.frames_processed);
-        mailbox
-            .slot
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .spare
-            .push(frame.map);
+        let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
+        s.spare.push(map);
+        s.spare_images.extend(previous_image);
     }
 }

@@ -39,16 +39,23 @@ impl std::str::FromStr for RawPixel {
     }
 }
 
-/// Fixed-size raw frames read back to back from a reader.
+/// Fixed-size raw frames read back to back from a reader, a batch of rows at a time.
 pub struct RawSource<R: Read + Send> {
     reader: R,
     width: usize,
     height: usize,
     pixel: RawPixel,
     projection: Projection,
+    /// One batch of rows' bytes.
     buf: Vec<u8>,
+    rows_per_batch: usize,
     name: String,
 }
+
+/// About how many bytes are read and converted before the rows are handed on: small enough that
+/// the last batch's resampling is a small part of a frame's, large enough that the per-batch
+/// work is negligible (a pipe delivers 64 KiB per read).
+const BATCH_BYTES: usize = 128 << 10;
 
 impl<R: Read + Send> RawSource<R> {
     pub fn new(
@@ -60,62 +67,105 @@ impl<R: Read + Send> RawSource<R> {
         name: &str,
     ) -> anyhow::Result<Self> {
         projection.check_size(width, height)?;
-        let bytes = width
+        let row_bytes = width * pixel.bytes_per_pixel();
+        width
             .checked_mul(height)
             .and_then(|n| n.checked_mul(pixel.bytes_per_pixel()))
             .filter(|&b| b <= 1 << 31)
             .ok_or_else(|| anyhow::anyhow!("raw frames of {width}×{height} are too large"))?;
+        let rows_per_batch = (BATCH_BYTES / row_bytes).clamp(1, height);
         Ok(RawSource {
             reader,
             width,
             height,
             pixel,
             projection,
-            buf: vec![0; bytes],
+            buf: vec![0; rows_per_batch * row_bytes],
+            rows_per_batch,
             name: name.to_owned(),
         })
+    }
+
+    /// Fills `buf` from the reader; `Ok(false)` on a clean end of stream before its first byte
+    /// when `may_end`.
+    fn fill(reader: &mut R, buf: &mut [u8], may_end: bool) -> Result<bool, String> {
+        let mut filled = 0;
+        while filled < buf.len() {
+            match reader.read(&mut buf[filled..]) {
+                Ok(0) if filled == 0 && may_end => return Ok(false),
+                Ok(0) => return Err("stream ended inside a frame".into()),
+                Ok(n) => filled += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e.to_string()),
+            }
+        }
+        Ok(true)
+    }
+}
+
+/// Decodes raw little-endian pixels into linear RGB.
+fn convert(pixel: RawPixel, bytes: &[u8], out: &mut [[f32; 3]]) {
+    let out = out.iter_mut();
+    match pixel {
+        RawPixel::Rgbf32le => {
+            for (o, c) in out.zip(bytes.chunks_exact(12)) {
+                *o =
+                    [0, 4, 8].map(|k| f32::from_le_bytes(c[k..k + 4].try_into().expect("4 bytes")));
+            }
+        }
+        RawPixel::Rgbf16le => {
+            for (o, c) in out.zip(bytes.chunks_exact(6)) {
+                *o = [0, 2, 4].map(|k| {
+                    half::f16::from_le_bytes(c[k..k + 2].try_into().expect("2 bytes")).to_f32()
+                });
+            }
+        }
+        RawPixel::Rgb48le => {
+            for (o, c) in out.zip(bytes.chunks_exact(6)) {
+                *o = [0, 2, 4].map(|k| {
+                    u16::from_le_bytes(c[k..k + 2].try_into().expect("2 bytes")) as f32 / 65535.0
+                });
+            }
+        }
     }
 }
 
 impl<R: Read + Send> FrameSource for RawSource<R> {
     fn next_frame(&mut self, out: &mut EnvMap) -> Result<bool, SourceError> {
-        // Read one whole frame; a clean end of stream between frames is the normal end, one in
-        // the middle of a frame is a truncated frame.
-        let mut filled = 0;
-        while filled < self.buf.len() {
-            match self.reader.read(&mut self.buf[filled..]) {
-                Ok(0) if filled == 0 => return Ok(false),
-                Ok(0) => {
-                    return Err(SourceError::Fatal(format!(
-                        "stream ended inside a frame ({filled} of {} bytes)",
-                        self.buf.len()
-                    )));
-                }
-                Ok(n) => filled += n,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(SourceError::Fatal(e.to_string())),
-            }
-        }
+        self.next_frame_by_rows(out, &mut |_, _| {})
+    }
+
+    /// Reads, converts and repairs a batch of rows at a time and hands each on at once. A clean
+    /// end of stream between frames is the normal end, one inside a frame a truncated frame.
+    fn next_frame_by_rows(
+        &mut self,
+        out: &mut EnvMap,
+        rows: &mut dyn FnMut(&EnvMap, std::ops::Range<usize>),
+    ) -> Result<bool, SourceError> {
         out.width = self.width;
         out.height = self.height;
         out.projection = self.projection;
-        out.pixels.clear();
-        match self.pixel {
-            RawPixel::Rgbf32le => out.pixels.extend(self.buf.chunks_exact(12).map(|c| {
-                [0, 4, 8].map(|o| f32::from_le_bytes(c[o..o + 4].try_into().expect("4 bytes")))
-            })),
-            RawPixel::Rgbf16le => out.pixels.extend(self.buf.chunks_exact(6).map(|c| {
-                [0, 2, 4].map(|o| {
-                    half::f16::from_le_bytes(c[o..o + 2].try_into().expect("2 bytes")).to_f32()
-                })
-            })),
-            RawPixel::Rgb48le => out.pixels.extend(self.buf.chunks_exact(6).map(|c| {
-                [0, 2, 4].map(|o| {
-                    u16::from_le_bytes(c[o..o + 2].try_into().expect("2 bytes")) as f32 / 65535.0
-                })
-            })),
+        out.repairs = Default::default();
+        out.pixels.resize(self.width * self.height, [0.0; 3]);
+        let row_bytes = self.width * self.pixel.bytes_per_pixel();
+        let mut row = 0;
+        while row < self.height {
+            let end = (row + self.rows_per_batch).min(self.height);
+            let bytes = &mut self.buf[..(end - row) * row_bytes];
+            match Self::fill(&mut self.reader, bytes, row == 0) {
+                Ok(true) => {}
+                Ok(false) => return Ok(false),
+                Err(e) => {
+                    let at = format!("after {row} of {} rows", self.height);
+                    return Err(SourceError::Fatal(format!("{e} ({at})")));
+                }
+            }
+            let pixels = &mut out.pixels[row * self.width..end * self.width];
+            convert(self.pixel, bytes, pixels);
+            out.repairs.add(sanitize(pixels));
+            rows(out, row..end);
+            row = end;
         }
-        out.repairs = sanitize(&mut out.pixels);
         Ok(true)
     }
 
@@ -170,6 +220,45 @@ mod tests {
             }
             assert!(!src.next_frame(&mut out).unwrap(), "clean end of stream");
         }
+    }
+
+    /// Rows are handed on in order, in batches that cover the frame, each final when handed on.
+    #[test]
+    fn rows_are_handed_on_in_batches_as_they_arrive() {
+        let (w, h) = (64, 100); // 768-byte rows: batches of BATCH_BYTES / 768 rows
+        let value = |k: usize| [k as f32, 0.5, (k % 7) as f32];
+        let bytes: Vec<u8> = (0..w * h)
+            .flat_map(|k| value(k).into_iter().flat_map(|c| c.to_le_bytes()))
+            .collect();
+        let mut src = RawSource::new(
+            &bytes[..],
+            w,
+            h,
+            RawPixel::Rgbf32le,
+            Projection::Fisheye {
+                lens: crate::envmap::Lens::Equidistant,
+                fov_deg: 180.0,
+                centre: None,
+                radius: None,
+            },
+            "t",
+        )
+        .unwrap();
+        src.rows_per_batch = 16;
+        let mut out = blank();
+        let mut batches = Vec::new();
+        assert!(
+            src.next_frame_by_rows(&mut out, &mut |m, rows| {
+                assert_eq!(m.pixels.len(), w * h);
+                for k in rows.start * w..rows.end * w {
+                    assert_eq!(m.pixels[k], value(k), "pixel {k} not final");
+                }
+                batches.push(rows);
+            })
+            .unwrap()
+        );
+        let expected: Vec<_> = (0..h).step_by(16).map(|r| r..(r + 16).min(h)).collect();
+        assert_eq!(batches, expected);
     }
 
     #[test]

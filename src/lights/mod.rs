@@ -331,8 +331,31 @@ impl Extractor {
         let t0 = Instant::now();
         self.resample(map, domain, None);
         let resample_s = t0.elapsed().as_secs_f64();
+        let mut out = self.extract_many_resampled(map, method, counts);
+        for ex in &mut out {
+            ex.timings.resample_s = resample_s;
+        }
+        out
+    }
+
+    /// Takes `image`, the domain image of `map` resampled elsewhere (the daemon resamples a frame
+    /// on its capture thread, as the frame arrives), as the current frame's; returns the previous
+    /// one so that its buffers can be reused.
+    pub fn put_image(&mut self, image: DomainImage) -> Option<DomainImage> {
+        self.half_is_current = false;
+        self.image.replace(image)
+    }
+
+    /// [`extract_many`](Self::extract_many) from the image left by [`resample`](Self::resample)
+    /// or [`put_image`](Self::put_image) (its timings' `resample_s` is 0).
+    pub fn extract_many_resampled(
+        &mut self,
+        map: &EnvMap,
+        method: Method,
+        counts: &[usize],
+    ) -> Vec<Extraction> {
         let max_n = counts.iter().copied().max().unwrap_or(1).clamp(1, N_MAX);
-        let image = self.image.take().expect("resampled");
+        let image = self.image.take().expect("resample() or put_image() first");
         let total = image.integral();
         let mut warp_s = 0.0;
         if method != Method::MedianCut {
@@ -363,7 +386,7 @@ impl Extractor {
                     total,
                     side: image.side,
                     timings: StageTimings {
-                        resample_s,
+                        resample_s: 0.0,
                         warp_s,
                         assign_s: t.elapsed().as_secs_f64(),
                     },

@@ -266,17 +266,25 @@ impl ImageArrays<'_> {
     }
 }
 
-/// Deposits each pixel of `runs` into its texel: radiance × weight and luminance × weighted
-/// direction, in 4-wide f32 registers (energy exact up to f32 rounding).
+/// Deposits each pixel of `runs` (in pixel order) that lies in `only` into its texel: radiance ×
+/// weight and luminance × weighted direction, in 4-wide f32 registers (energy exact up to f32
+/// rounding).
 fn scatter_pixels(
     runs: &[(u32, u32, u32)],
     entries: &[PixelEntry],
     pixels: &[[f32; 3]],
+    only: std::ops::Range<usize>,
     accum: &mut ImageArrays,
 ) {
-    for &(first_pixel, first_entry, len) in runs {
-        let (p0, e0, len) = (first_pixel as usize, first_entry as usize, len as usize);
-        for (e, p) in entries[e0..e0 + len].iter().zip(&pixels[p0..p0 + len]) {
+    let first = runs.partition_point(|r| (r.0 + r.2) as usize <= only.start);
+    for &(first_pixel, first_entry, len) in &runs[first..] {
+        let p0 = first_pixel as usize;
+        if p0 >= only.end {
+            break;
+        }
+        let (lo, hi) = (p0.max(only.start), (p0 + len as usize).min(only.end));
+        let e0 = first_entry as usize + (lo - p0);
+        for (e, p) in entries[e0..e0 + (hi - lo)].iter().zip(&pixels[lo..hi]) {
             let p = Vec3A::from_array(*p);
             accum.add(
                 e.texel as usize,
@@ -290,20 +298,22 @@ fn scatter_pixels(
 /// Rec. 709 luminance weights, as [`EnvMap::luminance`].
 const LUMINANCE: Vec3A = Vec3A::new(0.2126, 0.7152, 0.0722);
 
-/// The lat-long pass (see [`LatLongTable`]): per span, Σ L, Σ Y, Σ Y sin φ and Σ Y cos φ in
-/// registers, then one deposit scaled by the row's factors.
+/// The lat-long pass (see [`LatLongTable`]) over the pixel rows `rows`: per span, Σ L, Σ Y,
+/// Σ Y sin φ and Σ Y cos φ in registers, then one deposit scaled by the row's factors.
 fn scatter_latlong(
     t: &LatLongTable,
     list: &SpanList,
     width: usize,
     pixels: &[[f32; 3]],
+    rows: std::ops::Range<usize>,
     accum: &mut ImageArrays,
 ) {
-    for (j, rows) in list.row_start.windows(2).enumerate() {
+    for j in rows {
         let [w, w_sin_theta, w_cos_theta] = t.rows[j];
         let row = &pixels[j * width..(j + 1) * width];
         let mut col = 0usize;
-        for span in &list.spans[rows[0] as usize..rows[1] as usize] {
+        let spans = list.row_start[j] as usize..list.row_start[j + 1] as usize;
+        for span in &list.spans[spans] {
             let end = span.end as usize;
             if span.texel != SKIP {
                 let mut radiance = Vec3A::ZERO;
@@ -629,12 +639,21 @@ impl Resampler {
                 first,
             };
             match table {
-                Table::PerPixel(t) => {
-                    scatter_pixels(&t.bands[band].work, &t.entries, pixels, &mut arrays)
-                }
-                Table::LatLong(t) => {
-                    scatter_latlong(t, &t.bands[band].work, width, pixels, &mut arrays)
-                }
+                Table::PerPixel(t) => scatter_pixels(
+                    &t.bands[band].work,
+                    &t.entries,
+                    pixels,
+                    0..pixels.len(),
+                    &mut arrays,
+                ),
+                Table::LatLong(t) => scatter_latlong(
+                    t,
+                    &t.bands[band].work,
+                    width,
+                    pixels,
+                    0..t.rows.len(),
+                    &mut arrays,
+                ),
             }
             for (y, r) in luminance.iter_mut().zip(arrays.radiance.iter()) {
                 *y = EnvMap::luminance(*r);
@@ -651,6 +670,53 @@ impl Resampler {
             }
             fill(0, first);
         });
+    }
+
+    /// Starts resampling a frame that arrives a few rows at a time (a camera pipe), so that when
+    /// its last row arrives only that row's share is left: zeroes `out`; then call
+    /// [`add_rows`](Self::add_rows) for each batch of rows as it lands in the map and
+    /// [`finish_rows`](Self::finish_rows) after the last. The image is bit-identical to
+    /// [`resample_into`](Self::resample_into)'s on any thread count: every texel receives the same
+    /// deposits in the same (pixel) order.
+    pub fn begin_rows(&self, out: &mut DomainImage) {
+        let n = self.side * self.side;
+        out.domain = self.domain;
+        out.side = self.side;
+        for v in [&mut out.radiance, &mut out.moment] {
+            v.clear();
+            v.resize(n, [0.0; 3]);
+        }
+        out.luminance.resize(n, 0.0);
+    }
+
+    /// Deposits the map's pixel rows `rows` into `out` (on this thread, from the table's full
+    /// list); the other rows of the map are not read.
+    pub fn add_rows(&self, map: &EnvMap, rows: std::ops::Range<usize>, out: &mut DomainImage) {
+        assert!(
+            map.pixels.len() == self.width * self.height && rows.end <= self.height,
+            "map does not fit the table"
+        );
+        let mut arrays = ImageArrays {
+            radiance: &mut out.radiance,
+            moment: &mut out.moment,
+            first: 0,
+        };
+        match &self.table {
+            Table::PerPixel(t) => {
+                let pixels = rows.start * self.width..rows.end * self.width;
+                scatter_pixels(&t.runs, &t.entries, &map.pixels, pixels, &mut arrays)
+            }
+            Table::LatLong(t) => {
+                scatter_latlong(t, &t.all, self.width, &map.pixels, rows, &mut arrays)
+            }
+        }
+    }
+
+    /// Completes a frame resampled by rows: the luminance channel.
+    pub fn finish_rows(&self, out: &mut DomainImage) {
+        for (y, r) in out.luminance.iter_mut().zip(&out.radiance) {
+            *y = EnvMap::luminance(*r);
+        }
     }
 
     /// Threads used by [`resample_into`](Self::resample_into) (1 by default): the square is cut
@@ -790,6 +856,57 @@ mod tests {
             let b = r.resample(&map);
             assert_close(&a, &b, 1e-5, &format!("{threads} threads"));
             assert_eq!(a.luminance, b.luminance);
+        }
+    }
+
+    /// Resampling by rows, in uneven batches, gives exactly the image of the whole-frame pass
+    /// (same deposits in the same order), for the per-pixel and the lat-long table.
+    #[test]
+    fn resampling_by_rows_matches_the_whole_frame_pass() {
+        let fisheye = Projection::Fisheye {
+            lens: crate::envmap::Lens::Equidistant,
+            fov_deg: 180.0,
+            centre: None,
+            radius: None,
+        };
+        for (projection, domain, w, h) in [
+            (fisheye, Domain::Upper, 96, 80),
+            (Projection::LatLong, Domain::Sphere, 160, 80),
+            (Projection::LatLong, Domain::Upper, 160, 80),
+        ] {
+            let map = EnvMap::from_pixels(
+                w,
+                h,
+                (0..w * h)
+                    .map(|k| [(k % 13) as f32, 1.0 + (k % 7) as f32, (k / w) as f32 * 0.1])
+                    .collect(),
+                projection,
+            )
+            .unwrap();
+            for threads in [1, 3] {
+                let mut r = Resampler::new(projection, w, h, domain, None);
+                r.set_threads(threads);
+                let whole = r.resample(&map);
+                // Start from a dirty image: begin_rows must clear it.
+                let mut by_rows = whole.clone();
+                by_rows.radiance.iter_mut().for_each(|p| *p = [9.0; 3]);
+                r.begin_rows(&mut by_rows);
+                let mut row = 0;
+                for batch in [1, 7, 16, 3, 40, 13].iter().cycle() {
+                    if row == h {
+                        break;
+                    }
+                    let end = (row + batch).min(h);
+                    r.add_rows(&map, row..end, &mut by_rows);
+                    row = end;
+                }
+                r.finish_rows(&mut by_rows);
+                let what = format!("{projection:?} {domain:?} {threads} threads");
+                assert_eq!(whole.radiance, by_rows.radiance, "{what}");
+                assert_eq!(whole.moment, by_rows.moment, "{what}");
+                assert_eq!(whole.luminance, by_rows.luminance, "{what}");
+                assert!(whole.integral()[1] > 0.0, "{what}");
+            }
         }
     }
 
