@@ -1,8 +1,11 @@
 //! Daemon figures (issue 3): `cargo bench --bench serve`.
 //!
 //! 1. End-to-end latency from a frame entering the pipeline to a WebSocket client receiving its
-//!    LightSet, on loopback, p50 and p99, with 1 and 100 clients, frames at 30/s. The temporal
-//!    filter's signal delay is not part of it (it is (taps−1)/2 frames, stated in each LightSet).
+//!    LightSet, on loopback, p50 and p99, with 1 and 100 clients, frames at 30/s, for three
+//!    feeds: sunrise.exr re-emitted whole, the same as raw frames through a pipe (a camera
+//!    pipeline) and the synthetic sky; the last two are resampled by rows as they arrive, and a
+//!    frame enters when its last rows are in. The temporal filter's signal delay is not part of
+//!    it (it is (taps−1)/2 frames, stated in each LightSet).
 //! 2. Sustained frames/s of the synthetic source at 1024×512 → 256 lights on one core (render,
 //!    extract, filter, serialise, in one thread).
 //! 3. POST /v1/lights requests/s for a 1024×512 EXR with 4 concurrent clients.
@@ -19,7 +22,7 @@ use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use vemlight::capture::files::FileSource;
 use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
 use vemlight::capture::stdin::{RawPixel, RawSource};
-use vemlight::capture::synthetic::{SyntheticConfig, SyntheticSky};
+use vemlight::capture::synthetic::{SyntheticConfig, SyntheticSky, SyntheticSource};
 use vemlight::capture::{FrameSource, pace};
 use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use vemlight::eval::speed::median;
@@ -49,6 +52,9 @@ enum Feed {
     /// thread, as a camera pipeline (`ffmpeg … | vemlight serve --source stdin`) feeds the
     /// daemon: each frame is read and resampled a batch of rows at a time as it arrives.
     Pipe,
+    /// The built-in synthetic sky (`vemlight serve` with no arguments), 1024×512: each frame is
+    /// rendered and resampled a batch of rows at a time.
+    Synthetic,
 }
 
 /// Writes `map` as raw rgbf32le frames into `pipe` at `fps` until the reader goes away.
@@ -77,6 +83,7 @@ async fn start_server(
         .expect("tests/data/sunrise.exr");
     let source: Box<dyn FrameSource> = match feed {
         Feed::File => Box::new(file),
+        Feed::Synthetic => Box::new(SyntheticSource::new(SyntheticConfig::default(), fps)),
         Feed::Pipe => {
             let map = EnvMap::open(std::path::Path::new(MAP), None, DEFAULT_MAX_PIXELS).unwrap();
             let (reader, writer) = std::io::pipe().unwrap();
@@ -408,7 +415,12 @@ fn main() {
         // The default pipeline, then without the Lloyd steps (`serve --refine 0`), then fed by
         // a camera pipe.
         let default_refine = PipelineConfig::default().refine;
-        for (refine, feed) in [(default_refine, Feed::File), (0, Feed::File), (default_refine, Feed::Pipe)] {
+        for (refine, feed) in [
+            (default_refine, Feed::File),
+            (0, Feed::File),
+            (default_refine, Feed::Pipe),
+            (default_refine, Feed::Synthetic),
+        ] {
             let cfg = PipelineConfig {
                 refine,
                 ..PipelineConfig::default()
@@ -419,6 +431,7 @@ fn main() {
             let fed = match feed {
                 Feed::File => "sunrise.exr, whole frames",
                 Feed::Pipe => "sunrise.exr as raw rgbf32le frames through a pipe, by rows",
+                Feed::Synthetic => "the synthetic sky, 1024×512, by rows",
             };
             println!(
                 "end-to-end latency, frame captured → LightSet received (64 lights, 30 frames/s, loopback, {refine} Lloyd steps; {fed})"

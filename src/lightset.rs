@@ -27,7 +27,7 @@ pub struct LightSet {
     pub seq: u64,
     /// Index of the source frame.
     pub frame: u64,
-    /// When the frame was captured (read), nanoseconds since the Unix epoch.
+    /// When the frame was captured (its last rows read), nanoseconds since the Unix epoch.
     pub t_capture_ns: u64,
     /// When this document was produced, nanoseconds since the Unix epoch.
     pub t_emit_ns: u64,

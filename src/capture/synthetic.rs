@@ -34,6 +34,7 @@ use std::f64::consts::{FRAC_1_SQRT_2, FRAC_PI_2, PI, TAU};
 
 use glam::DVec3;
 use hw_skymodel::rgb::{SkyParams, SkyState};
+use std::ops::Range;
 
 use crate::envmap::{EnvMap, InputRepairs, Projection};
 
@@ -84,6 +85,9 @@ const SUN_CLOUD_OPACITY: f64 = 0.85;
 const CLOUD_SOFT_RADIUS: usize = 10;
 /// Supersampling per axis of the pixels on a disc's edge.
 const EDGE_SUPERSAMPLE: usize = 8;
+/// Rows the synthetic source renders before handing them on (16 of 512: the daemon's resampling
+/// of the last batch, after the frame is complete, is 1/32 of a frame's).
+pub const ROWS_PER_BATCH: usize = 16;
 
 /// Configuration of the synthetic sky. Out-of-range values are clamped by [`SyntheticSky::new`].
 #[derive(Clone, Debug, PartialEq)]
@@ -197,8 +201,9 @@ pub struct SyntheticSky {
     rows: Vec<Row>,
     col_sin: Vec<f32>,
     col_cos: Vec<f32>,
-    /// Scratch for disc splats: (pixel index, covered solid angle, row).
-    splat: Vec<(usize, f64, usize)>,
+    /// The sun's and the lamp's disc coverage (see [`Self::cover_cap`]), kept between frames.
+    sun_splat: Vec<(usize, f64, usize)>,
+    lamp_splat: Vec<(usize, f64, usize)>,
     #[cfg(test)]
     draw_sun: bool,
 }
@@ -246,7 +251,8 @@ impl SyntheticSky {
             rows: Vec::new(),
             col_sin: Vec::new(),
             col_cos: Vec::new(),
-            splat: Vec::new(),
+            sun_splat: Vec::new(),
+            lamp_splat: Vec::new(),
             cfg,
             #[cfg(test)]
             draw_sun: true,
@@ -363,6 +369,20 @@ impl SyntheticSky {
     /// Renders the sky at time `t` into `out` (resized to width×height lat-long if needed), reusing
     /// its buffer: no per-frame allocation once warm.
     pub fn render_into(&mut self, t: f64, out: &mut EnvMap) {
+        self.render_by_rows(t, out, &mut |_, _| {});
+    }
+
+    /// [`render_into`](Self::render_into), handing each batch of [`ROWS_PER_BATCH`] rows on as soon
+    /// as it is final, top to bottom, as a camera's sensor is read out: the daemon resamples each
+    /// batch while the rest renders. The pixels are render_into's, bit for bit: the discs'
+    /// coverage is computed first and each batch adds its rows' share, and the ground, which the
+    /// whole sky lights, comes after the sky rows.
+    pub fn render_by_rows(
+        &mut self,
+        t: f64,
+        out: &mut EnvMap,
+        rows: &mut dyn FnMut(&EnvMap, Range<usize>),
+    ) {
         let (w, h) = (self.cfg.width, self.cfg.height);
         out.width = w;
         out.height = h;
@@ -387,6 +407,33 @@ impl SyntheticSky {
             self.update_rows();
         }
 
+        // The sun (hidden by the ground below the horizon) and the lamp (a nearby source drawn
+        // over everything): their pixels' coverage, added batch by batch below.
+        #[cfg(test)]
+        let draw_sun = self.draw_sun;
+        #[cfg(not(test))]
+        let draw_sun = true;
+        let sun_radius = (0.5 * SUN_ANGULAR_DIAMETER_DEG).to_radians();
+        let sun_radiance = self.sun_radiance(t);
+        let mut sun_disc = Disc::take(&mut self.sun_splat);
+        if draw_sun && sun_radiance != [0.0; 3] {
+            sun_disc.scale = self.cover_cap(&mut sun_disc.cover, sun, sun_radius);
+        }
+        let mut lamp_disc = Disc::take(&mut self.lamp_splat);
+        let mut lamp_radiance = [0.0; 3];
+        if self.switch_light_on(t)
+            && let Some(lamp) = self.cfg.switch_light.clone()
+            && lamp.to_light.length_squared() > 0.0
+        {
+            let radius = lamp.radius_deg.to_radians().clamp(0.0, PI);
+            let r = lamp.radiance.max(0.0);
+            if r.is_finite() && radius > 0.0 {
+                lamp_radiance = [r; 3];
+                lamp_disc.scale =
+                    self.cover_cap(&mut lamp_disc.cover, lamp.to_light.normalize(), radius);
+            }
+        }
+
         // Twilight: the model (clamped to sunrise) fades out as the sun sinks.
         let fade = (elev_deg.min(0.0) / TWILIGHT_FADE_DEG).exp() as f32;
         let grey_lum = fade * CLOUD_GAIN * self.sky_mean_lum;
@@ -398,86 +445,85 @@ impl SyntheticSky {
         let n0 = (shift as usize).min(w - 1);
         let fs = (shift - n0 as f64) as f32;
 
-        // Sky rows, accumulating the horizontal-plane irradiance they deliver to the ground.
+        // The horizontal-plane irradiance the sky rows (then the sun) deliver to the ground.
         let mut ground_irradiance = [0.0f64; 3];
-        for (j, row) in self.rows.iter().enumerate() {
-            if !row.sky {
-                continue;
-            }
-            let px = &mut out.pixels[j * w..(j + 1) * w];
-            let ka = row.st * sx;
-            let kb = row.st * sz;
-            let kc = row.ct * sy;
-            let a = row.a.map(|x| x * fade);
-            let ac = row.ac.map(|x| x * fade);
-            for (p, (&sp, &cp)) in px.iter_mut().zip(self.col_sin.iter().zip(&self.col_cos)) {
-                let cos_gamma = ka * sp - kb * cp + kc;
-                let g = gamma_lookup(&self.gamma_table, cos_gamma);
-                for c in 0..3 {
-                    p[c] = (a[c] * g[c] + ac[c]).max(0.0) + NIGHT_RADIANCE[c];
+        let mut sun_irradiance = [0.0f64; 3];
+        let mut ground: Option<[f32; 3]> = None;
+        let albedo = self.cfg.ground_albedo;
+        for first in (0..h).step_by(ROWS_PER_BATCH) {
+            let batch = first..(first + ROWS_PER_BATCH).min(h);
+            for j in batch.clone() {
+                let row = &self.rows[j];
+                if !row.sky {
+                    continue;
                 }
-            }
-            if clouds {
-                let cover = &self.cover_ll[j * w..(j + 1) * w];
-                for (i, p) in px.iter_mut().enumerate() {
-                    let i0 = if i + n0 < w { i + n0 } else { i + n0 - w };
-                    let i1 = if i0 + 1 < w { i0 + 1 } else { 0 };
-                    let k = cover[i0] + fs * (cover[i1] - cover[i0]);
+                let px = &mut out.pixels[j * w..(j + 1) * w];
+                let ka = row.st * sx;
+                let kb = row.st * sz;
+                let kc = row.ct * sy;
+                let a = row.a.map(|x| x * fade);
+                let ac = row.ac.map(|x| x * fade);
+                for (p, (&sp, &cp)) in px.iter_mut().zip(self.col_sin.iter().zip(&self.col_cos)) {
+                    let cos_gamma = ka * sp - kb * cp + kc;
+                    let g = gamma_lookup(&self.gamma_table, cos_gamma);
                     for c in 0..3 {
-                        p[c] += k * (grey[c] - p[c]);
+                        p[c] = (a[c] * g[c] + ac[c]).max(0.0) + NIGHT_RADIANCE[c];
                     }
                 }
-            }
-            let mut row_sum = [0.0f32; 3];
-            for p in px.iter() {
+                if clouds {
+                    let cover = &self.cover_ll[j * w..(j + 1) * w];
+                    for (i, p) in px.iter_mut().enumerate() {
+                        let i0 = if i + n0 < w { i + n0 } else { i + n0 - w };
+                        let i1 = if i0 + 1 < w { i0 + 1 } else { 0 };
+                        let k = cover[i0] + fs * (cover[i1] - cover[i0]);
+                        for c in 0..3 {
+                            p[c] += k * (grey[c] - p[c]);
+                        }
+                    }
+                }
+                let mut row_sum = [0.0f32; 3];
+                for p in px.iter() {
+                    for c in 0..3 {
+                        row_sum[c] += p[c];
+                    }
+                }
+                let weight = row.ct as f64 * row.d_omega;
                 for c in 0..3 {
-                    row_sum[c] += p[c];
+                    ground_irradiance[c] += row_sum[c] as f64 * weight;
                 }
             }
-            let weight = row.ct as f64 * row.d_omega;
-            for c in 0..3 {
-                ground_irradiance[c] += row_sum[c] as f64 * weight;
+            sun_disc.draw(
+                &self.rows,
+                &mut out.pixels,
+                batch.end,
+                sun_radiance,
+                true,
+                &mut sun_irradiance,
+            );
+            for j in batch.clone() {
+                if !self.rows[j].sky {
+                    // Every sky row is done: the sky rows come first.
+                    let g = *ground.get_or_insert_with(|| {
+                        std::array::from_fn(|c| {
+                            let e = ground_irradiance[c] + sun_irradiance[c];
+                            (albedo * e / PI) as f32
+                        })
+                    });
+                    out.pixels[j * w..(j + 1) * w].fill(g);
+                }
             }
+            lamp_disc.draw(
+                &self.rows,
+                &mut out.pixels,
+                batch.end,
+                lamp_radiance,
+                false,
+                &mut [0.0; 3],
+            );
+            rows(out, batch);
         }
-
-        // The sun, hidden by the ground below the horizon, then the ground it and the sky light.
-        #[cfg(test)]
-        let draw_sun = self.draw_sun;
-        #[cfg(not(test))]
-        let draw_sun = true;
-        let sun_radius = (0.5 * SUN_ANGULAR_DIAMETER_DEG).to_radians();
-        let radiance = self.sun_radiance(t);
-        if draw_sun && radiance != [0.0; 3] {
-            let e = self.splat_cap(&mut out.pixels, sun, sun_radius, radiance, true);
-            for c in 0..3 {
-                ground_irradiance[c] += e[c];
-            }
-        }
-        let albedo = self.cfg.ground_albedo;
-        let ground = ground_irradiance.map(|e| (albedo * e / PI) as f32);
-        for (j, row) in self.rows.iter().enumerate() {
-            if !row.sky {
-                out.pixels[j * w..(j + 1) * w].fill(ground);
-            }
-        }
-
-        // The lamp, a nearby source drawn over everything.
-        if self.switch_light_on(t)
-            && let Some(lamp) = self.cfg.switch_light.clone()
-            && lamp.to_light.length_squared() > 0.0
-        {
-            let radius = lamp.radius_deg.to_radians().clamp(0.0, PI);
-            let r = lamp.radiance.max(0.0);
-            if r.is_finite() && radius > 0.0 {
-                self.splat_cap(
-                    &mut out.pixels,
-                    lamp.to_light.normalize(),
-                    radius,
-                    [r; 3],
-                    false,
-                );
-            }
-        }
+        self.sun_splat = sun_disc.cover;
+        self.lamp_splat = lamp_disc.cover;
     }
 
     /// Rebuilds the model state for input elevation `elev` (radians, clamped to 0..=π/2) and its
@@ -660,21 +706,13 @@ impl SyntheticSky {
         self.cover_soft = soft;
     }
 
-    /// Adds a disc of uniform `radiance`, centre `centre`, angular radius `radius` (rad) to a
-    /// lat-long map by exact area coverage: pixels entirely inside get full weight, pixels on the
-    /// edge are supersampled (8×8 cells with a linear-ramp coverage of each cell), and the weights
-    /// are then normalised so that their total solid angle equals the cap's 2π(1 − cos r); so the
-    /// disc's ∫ L dω is radiance × cap solid angle at any resolution, even for sub-pixel discs.
-    /// With `sky_only`, pixels of ground rows are skipped (the ground hides that part).
-    /// Returns the horizontal-plane irradiance the drawn part delivers (Σ L cos θ dω).
-    fn splat_cap(
-        &mut self,
-        pixels: &mut [[f32; 3]],
-        centre: DVec3,
-        radius: f64,
-        radiance: [f32; 3],
-        sky_only: bool,
-    ) -> [f64; 3] {
+    /// The lat-long pixels a disc of centre `centre` and angular radius `radius` (rad) covers,
+    /// by exact area coverage, into `cover` as (pixel, covered solid angle, row), in pixel order:
+    /// pixels entirely inside get full weight, pixels on the edge are supersampled (8×8 cells
+    /// with a linear-ramp coverage of each cell). Returns the scale that normalises their total
+    /// solid angle to the cap's 2π(1 − cos r) (0 when nothing is covered), so that the disc's
+    /// ∫ L dω is radiance × cap solid angle at any resolution, even for sub-pixel discs.
+    fn cover_cap(&self, cover: &mut Vec<(usize, f64, usize)>, centre: DVec3, radius: f64) -> f64 {
         let (w, h) = self.res;
         let (dtheta, dphi) = (PI / h as f64, TAU / w as f64);
         let theta_c = centre.y.clamp(-1.0, 1.0).acos();
@@ -697,7 +735,7 @@ impl SyntheticSky {
             }
         };
 
-        self.splat.clear();
+        cover.clear();
         let mut total = 0.0;
         let n = EDGE_SUPERSAMPLE;
         for j in j0..=j1 {
@@ -738,28 +776,64 @@ impl SyntheticSky {
                 };
                 if covered > 0.0 {
                     total += covered;
-                    self.splat.push((j * w + i, covered, j));
+                    cover.push((j * w + i, covered, j));
                 }
             }
         }
-        let mut irradiance = [0.0; 3];
         if total <= 0.0 {
-            return irradiance;
+            cover.clear();
+            return 0.0;
         }
-        let scale = cap_solid_angle(radius) / total;
-        for &(p, covered, j) in &self.splat {
-            let row = &self.rows[j];
+        cap_solid_angle(radius) / total
+    }
+}
+
+/// A disc's coverage ([`SyntheticSky::cover_cap`]) being drawn batch by batch.
+struct Disc {
+    cover: Vec<(usize, f64, usize)>,
+    scale: f64,
+    /// Entries of `cover` already drawn.
+    drawn: usize,
+}
+
+impl Disc {
+    /// An empty disc reusing `buffer`.
+    fn take(buffer: &mut Vec<(usize, f64, usize)>) -> Disc {
+        let mut cover = std::mem::take(buffer);
+        cover.clear();
+        Disc {
+            cover,
+            scale: 0.0,
+            drawn: 0,
+        }
+    }
+
+    /// Adds the disc's uniform `radiance` to its pixels in the rows before `end_row` not yet
+    /// drawn (with `sky_only`, skipping ground rows: the ground hides that part), and the
+    /// horizontal-plane irradiance the drawn part delivers (Σ L cos θ dω) to `irradiance`.
+    fn draw(
+        &mut self,
+        rows: &[Row],
+        pixels: &mut [[f32; 3]],
+        end_row: usize,
+        radiance: [f32; 3],
+        sky_only: bool,
+        irradiance: &mut [f64; 3],
+    ) {
+        let todo = self.cover[self.drawn..].partition_point(|&(_, _, j)| j < end_row);
+        for &(p, covered, j) in &self.cover[self.drawn..self.drawn + todo] {
+            let row = &rows[j];
             if sky_only && !row.sky {
                 continue;
             }
-            let omega = covered * scale;
+            let omega = covered * self.scale;
             let frac = (omega / row.d_omega) as f32;
             for c in 0..3 {
                 pixels[p][c] += radiance[c] * frac;
                 irradiance[c] += radiance[c] as f64 * omega * row.ct as f64;
             }
         }
-        irradiance
+        self.drawn += todo;
     }
 }
 
@@ -939,9 +1013,17 @@ impl SyntheticSource {
 
 impl super::FrameSource for SyntheticSource {
     fn next_frame(&mut self, out: &mut EnvMap) -> Result<bool, super::SourceError> {
+        self.next_frame_by_rows(out, &mut |_, _| {})
+    }
+
+    fn next_frame_by_rows(
+        &mut self,
+        out: &mut EnvMap,
+        rows: &mut dyn FnMut(&EnvMap, Range<usize>),
+    ) -> Result<bool, super::SourceError> {
         super::pace(&mut self.next, self.fps);
         self.sky
-            .render_into(self.start.elapsed().as_secs_f64(), out);
+            .render_by_rows(self.start.elapsed().as_secs_f64(), out, rows);
         Ok(true)
     }
 
@@ -1251,6 +1333,39 @@ mod tests {
                     "w {width} t {t}: {d} vs {want}"
                 );
             }
+        }
+    }
+
+    /// Rows are handed on top to bottom in batches that cover the frame, each final when handed
+    /// on (the sun, the lamp and the ground included), with the clouds and the lamp on.
+    #[test]
+    fn rows_are_handed_on_final_in_batches() {
+        let mut s = sky(256, |c| {
+            c.clouds = 0.5;
+            c.start_elevation_deg = 30.0;
+        });
+        for t in [0.0, 1.3] {
+            let mut batches: Vec<(Range<usize>, Vec<[f32; 3]>)> = Vec::new();
+            let mut out = s.render(t + 100.0); // a dirty buffer
+            s.render_by_rows(t, &mut out, &mut |m, rows| {
+                let px = m.pixels[rows.start * m.width..rows.end * m.width].to_vec();
+                batches.push((rows, px));
+            });
+            let whole = s.render(t);
+            assert!(s.switch_light_on(t), "the lamp is drawn");
+            let mut next = 0;
+            for (rows, px) in &batches {
+                assert_eq!(rows.start, next);
+                assert_eq!(rows.len(), ROWS_PER_BATCH.min(whole.height - next));
+                let w = whole.width;
+                assert!(
+                    px == &whole.pixels[rows.start * w..rows.end * w],
+                    "{rows:?} at t={t}"
+                );
+                next = rows.end;
+            }
+            assert_eq!(next, whole.height);
+            assert_eq!(out.pixels, whole.pixels);
         }
     }
 
