@@ -185,10 +185,11 @@ enum Table {
 struct PixelTable {
     /// One entry per source pixel inside the domain, in pixel order.
     entries: Vec<PixelEntry>,
-    /// Runs of consecutive pixels with entries: (first pixel, first entry, length); kept to cut
-    /// new bands from when the thread count changes.
+    /// Runs of consecutive pixels with entries: (first pixel, first entry, length): the work of
+    /// one thread, and what the bands of several are cut from.
     runs: Vec<(u32, u32, u32)>,
-    /// Per band of texels (one band per thread): the runs of consecutive pixels that land in it.
+    /// With several threads, per band of texels (one per thread): the runs of consecutive pixels
+    /// that land in it. Empty with one thread: `runs` is the one band.
     bands: Vec<Band<Vec<(u32, u32, u32)>>>,
 }
 
@@ -223,9 +224,10 @@ struct LatLongTable {
     rows: Vec<[f32; 3]>,
     /// Per column: (sin φ, cos φ).
     cols: Vec<[f32; 2]>,
-    /// Every span (one band); kept to cut new bands from when the thread count changes.
+    /// Every span: the work of one thread, and what the bands of several are cut from.
     all: SpanList,
-    /// Per band of texels: its spans, the others' pixels merged into skipped spans.
+    /// With several threads, per band of texels: its spans, the others' pixels merged into
+    /// skipped spans. Empty with one thread: `all` is the one band.
     bands: Vec<Band<SpanList>>,
 }
 
@@ -366,19 +368,19 @@ impl PixelTable {
                 });
             }
         }
-        let bands = vec![Band {
-            texels: 0..side * side,
-            work: runs.clone(),
-        }];
         PixelTable {
             entries,
             runs,
-            bands,
+            bands: Vec::new(),
         }
     }
 
     /// Re-cuts the runs into `parts` bands of about equal pixel counts.
     fn set_bands(&mut self, side: usize, parts: usize) {
+        if parts <= 1 {
+            self.bands.clear();
+            return;
+        }
         let mut per_texel = vec![0usize; side * side];
         for e in &self.entries {
             per_texel[e.texel as usize] += 1;
@@ -446,20 +448,20 @@ impl LatLongTable {
                 [phi.sin() as f32, phi.cos() as f32]
             })
             .collect();
-        let bands = vec![Band {
-            texels: 0..side * side,
-            work: all.clone(),
-        }];
         LatLongTable {
             rows,
             cols,
             all,
-            bands,
+            bands: Vec::new(),
         }
     }
 
     /// Re-cuts the spans into `parts` bands of about equal pixel counts.
     fn set_bands(&mut self, side: usize, parts: usize) {
+        if parts <= 1 {
+            self.bands.clear();
+            return;
+        }
         let mut per_texel = vec![0usize; side * side];
         for row in self.all.row_start.windows(2) {
             let mut col = 0;
@@ -625,8 +627,13 @@ impl Resampler {
         out.luminance.resize(n, 0.0);
         let table = &self.table;
         let ranges: Vec<std::ops::Range<usize>> = match table {
-            Table::PerPixel(t) => t.bands.iter().map(|b| b.texels.clone()).collect(),
-            Table::LatLong(t) => t.bands.iter().map(|b| b.texels.clone()).collect(),
+            Table::PerPixel(t) if !t.bands.is_empty() => {
+                t.bands.iter().map(|b| b.texels.clone()).collect()
+            }
+            Table::LatLong(t) if !t.bands.is_empty() => {
+                t.bands.iter().map(|b| b.texels.clone()).collect()
+            }
+            _ => std::iter::once(0..n).collect(),
         };
         // Each band zeroes and fills its own slice of the image, in its own thread.
         let fill = |band: usize, slice: BandSlice| {
@@ -640,7 +647,7 @@ impl Resampler {
             };
             match table {
                 Table::PerPixel(t) => scatter_pixels(
-                    &t.bands[band].work,
+                    t.bands.get(band).map_or(&t.runs, |b| &b.work),
                     &t.entries,
                     pixels,
                     0..pixels.len(),
@@ -648,7 +655,7 @@ impl Resampler {
                 ),
                 Table::LatLong(t) => scatter_latlong(
                     t,
-                    &t.bands[band].work,
+                    t.bands.get(band).map_or(&t.all, |b| &b.work),
                     width,
                     pixels,
                     0..t.rows.len(),
