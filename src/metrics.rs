@@ -137,7 +137,10 @@ pub struct Metrics {
     pub ws_clients_stalled: AtomicU64,
     pub http_lights_requests: AtomicU64,
     pub http_lights_errors: AtomicU64,
+    /// Getting a frame from the source, with the resampling of the rows handed on while it
+    /// arrives (a streaming source's).
     pub stage_capture: StageTimer,
+    /// Resampling after the frame's last rows are in (all of it for a frame that lands whole).
     pub stage_resample: StageTimer,
     pub stage_warp: StageTimer,
     pub stage_assign: StageTimer,
@@ -239,7 +242,8 @@ impl Metrics {
         let _ = writeln!(s, "vemlight_ws_clients {}", self.ws_clients.load(Relaxed));
         let _ = writeln!(
             s,
-            "# HELP vemlight_stage_seconds Time spent per pipeline stage."
+            "# HELP vemlight_stage_seconds Time spent per pipeline stage (capture includes resampling \
+             rows while the frame arrives; resample is what is left once it is in)."
         );
         let _ = writeln!(s, "# TYPE vemlight_stage_seconds summary");
         for (stage, t) in [
