@@ -437,13 +437,15 @@ impl SyntheticSky {
         // Twilight: the model (clamped to sunrise) fades out as the sun sinks.
         let fade = (elev_deg.min(0.0) / TWILIGHT_FADE_DEG).exp() as f32;
         let grey_lum = fade * CLOUD_GAIN * self.sky_mean_lum;
-        let grey = NIGHT_RADIANCE.map(|n| n + grey_lum);
-        let (sx, sy, sz) = (sun.x as f32, sun.y as f32, sun.z as f32);
         // The drift is a rotation about +Y, i.e. a shift of `shift` columns of the lat-long cover.
-        let clouds = !self.cover.is_empty();
         let shift = self.cloud_offset(t) / (TAU / w as f64);
         let n0 = (shift as usize).min(w - 1);
-        let fs = (shift - n0 as f64) as f32;
+        let frame = SkyFrame {
+            fade,
+            grey: NIGHT_RADIANCE.map(|n| n + grey_lum),
+            sun: (sun.x as f32, sun.y as f32, sun.z as f32),
+            cloud_shift: (n0, (shift - n0 as f64) as f32),
+        };
 
         // The horizontal-plane irradiance the sky rows (then the sun) deliver to the ground.
         let mut ground_irradiance = [0.0f64; 3];
@@ -453,43 +455,12 @@ impl SyntheticSky {
         for first in (0..h).step_by(ROWS_PER_BATCH) {
             let batch = first..(first + ROWS_PER_BATCH).min(h);
             for j in batch.clone() {
-                let row = &self.rows[j];
-                if !row.sky {
-                    continue;
-                }
-                let px = &mut out.pixels[j * w..(j + 1) * w];
-                let ka = row.st * sx;
-                let kb = row.st * sz;
-                let kc = row.ct * sy;
-                let a = row.a.map(|x| x * fade);
-                let ac = row.ac.map(|x| x * fade);
-                for (p, (&sp, &cp)) in px.iter_mut().zip(self.col_sin.iter().zip(&self.col_cos)) {
-                    let cos_gamma = ka * sp - kb * cp + kc;
-                    let g = gamma_lookup(&self.gamma_table, cos_gamma);
+                if self.rows[j].sky {
+                    let px = &mut out.pixels[j * w..(j + 1) * w];
+                    let e = self.sky_row(&frame, j, px);
                     for c in 0..3 {
-                        p[c] = (a[c] * g[c] + ac[c]).max(0.0) + NIGHT_RADIANCE[c];
+                        ground_irradiance[c] += e[c];
                     }
-                }
-                if clouds {
-                    let cover = &self.cover_ll[j * w..(j + 1) * w];
-                    for (i, p) in px.iter_mut().enumerate() {
-                        let i0 = if i + n0 < w { i + n0 } else { i + n0 - w };
-                        let i1 = if i0 + 1 < w { i0 + 1 } else { 0 };
-                        let k = cover[i0] + fs * (cover[i1] - cover[i0]);
-                        for c in 0..3 {
-                            p[c] += k * (grey[c] - p[c]);
-                        }
-                    }
-                }
-                let mut row_sum = [0.0f32; 3];
-                for p in px.iter() {
-                    for c in 0..3 {
-                        row_sum[c] += p[c];
-                    }
-                }
-                let weight = row.ct as f64 * row.d_omega;
-                for c in 0..3 {
-                    ground_irradiance[c] += row_sum[c] as f64 * weight;
                 }
             }
             sun_disc.draw(
@@ -706,6 +677,46 @@ impl SyntheticSky {
         self.cover_soft = soft;
     }
 
+    /// Renders sky row `j` into `px` (the model, then the drifting clouds); returns the
+    /// horizontal-plane irradiance the row delivers to the ground (Σ L cos θ dω).
+    fn sky_row(&self, frame: &SkyFrame, j: usize, px: &mut [[f32; 3]]) -> [f64; 3] {
+        let w = px.len();
+        let row = &self.rows[j];
+        let (sx, sy, sz) = frame.sun;
+        let ka = row.st * sx;
+        let kb = row.st * sz;
+        let kc = row.ct * sy;
+        let a = row.a.map(|x| x * frame.fade);
+        let ac = row.ac.map(|x| x * frame.fade);
+        for (p, (&sp, &cp)) in px.iter_mut().zip(self.col_sin.iter().zip(&self.col_cos)) {
+            let cos_gamma = ka * sp - kb * cp + kc;
+            let g = gamma_lookup(&self.gamma_table, cos_gamma);
+            for c in 0..3 {
+                p[c] = (a[c] * g[c] + ac[c]).max(0.0) + NIGHT_RADIANCE[c];
+            }
+        }
+        if !self.cover.is_empty() {
+            let (n0, fs) = frame.cloud_shift;
+            let cover = &self.cover_ll[j * w..(j + 1) * w];
+            for (i, p) in px.iter_mut().enumerate() {
+                let i0 = if i + n0 < w { i + n0 } else { i + n0 - w };
+                let i1 = if i0 + 1 < w { i0 + 1 } else { 0 };
+                let k = cover[i0] + fs * (cover[i1] - cover[i0]);
+                for c in 0..3 {
+                    p[c] += k * (frame.grey[c] - p[c]);
+                }
+            }
+        }
+        let mut row_sum = [0.0f32; 3];
+        for p in px.iter() {
+            for c in 0..3 {
+                row_sum[c] += p[c];
+            }
+        }
+        let weight = row.ct as f64 * row.d_omega;
+        row_sum.map(|s| s as f64 * weight)
+    }
+
     /// The lat-long pixels a disc of centre `centre` and angular radius `radius` (rad) covers,
     /// by exact area coverage, into `cover` as (pixel, covered solid angle, row), in pixel order:
     /// pixels entirely inside get full weight, pixels on the edge are supersampled (8×8 cells
@@ -786,6 +797,18 @@ impl SyntheticSky {
         }
         cap_solid_angle(radius) / total
     }
+}
+
+/// What every sky row of one frame shares.
+struct SkyFrame {
+    /// Twilight fade of the model.
+    fade: f32,
+    /// Radiance of overcast cloud.
+    grey: [f32; 3],
+    /// Direction toward the sun.
+    sun: (f32, f32, f32),
+    /// The clouds' drift: whole columns, then the fraction of the next.
+    cloud_shift: (usize, f32),
 }
 
 /// A disc's coverage ([`SyntheticSky::cover_cap`]) being drawn batch by batch.
