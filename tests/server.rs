@@ -835,15 +835,16 @@ async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
     assert!(status.success(), "{status:?}");
 }
 
-/// Raw frames on stdin: the daemon serves them, and when the pipe closes it keeps serving the last
-/// set and says so in /healthz.
+/// Raw frames on stdin: the daemon serves them (512×256 rgbf32le frames: read and resampled in
+/// 13 batches of rows), and when the pipe closes it keeps serving the last set and says so in
+/// /healthz.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn serve_reads_raw_frames_from_stdin() {
     use std::io::Write;
-    let (w, h) = (64usize, 32usize);
+    let (w, h) = (512usize, 256usize);
     let (mut child, addr) = spawn_serve(&[
-        "--source", "stdin", "--width", "64", "--height", "32", "--pixel", "rgbf32le", "--filter",
-        "none",
+        "--source", "stdin", "--width", "512", "--height", "256", "--pixel", "rgbf32le",
+        "--filter", "none",
     ]);
     // Three frames: a bright patch in the upper half (sky), constant 0.1 elsewhere.
     let mut stdin = child.stdin.take().unwrap();
@@ -851,7 +852,7 @@ async fn serve_reads_raw_frames_from_stdin() {
         let mut bytes = Vec::with_capacity(w * h * 12);
         for j in 0..h {
             for i in 0..w {
-                let v: f32 = if (4..8).contains(&j) && (40..44).contains(&i) {
+                let v: f32 = if (32..64).contains(&j) && (320..352).contains(&i) {
                     50.0
                 } else {
                     0.1
