@@ -170,8 +170,7 @@ async fn latency(addr: std::net::SocketAddr, clients: usize, secs: f64) -> Vec<(
 fn sustained_synthetic(frames: usize) -> (f64, f64) {
     let mut sky = SyntheticSky::new(SyntheticConfig::default());
     let mut map = sky.render(0.0);
-    let mut ex = Extractor::new();
-    ex.set_threads(1); // one core
+    let mut ex = Extractor::new(); // resamples on this thread: one core
     let mut filter = TemporalFilter::new(&FilterSpec::default());
     let mut render_s = 0.0;
     let start = Instant::now();

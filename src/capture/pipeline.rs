@@ -323,20 +323,7 @@ impl CaptureResampler {
         let domain = self
             .domain
             .unwrap_or_else(|| default_domain(&map.projection));
-        if rows.start == 0
-            && !self
-                .resampler
-                .as_ref()
-                .is_some_and(|r| r.fits(map, domain, None))
-        {
-            let mut r = Resampler::new(map.projection, map.width, map.height, domain, None);
-            r.set_threads(self.threads);
-            self.resampler = Some(r);
-        }
-        let r = self
-            .resampler
-            .as_mut()
-            .expect("made on a frame's first rows");
+        let r = Resampler::reuse(&mut self.resampler, map, domain, None, self.threads);
         if rows.start == 0 && rows.end == map.height {
             r.resample_into(map, image);
             return domain;

@@ -172,7 +172,6 @@ pub struct Extractor {
     seeds: Vec<Vec3>,
     accum: Vec<CellAccum>,
     median_cut: median_cut::MedianCut,
-    threads: usize,
     /// Extra Lloyd steps of the voronoi method (0: the one step of ALGORITHMS.md §4).
     refine: usize,
     inverse_cdf: inverse_cdf::InverseCdf,
@@ -200,7 +199,6 @@ impl Default for Extractor {
             seeds: Vec::new(),
             accum: Vec::new(),
             median_cut: Default::default(),
-            threads: 1,
             refine: DEFAULT_REFINE,
             inverse_cdf: Default::default(),
         }
@@ -231,14 +229,6 @@ impl Extractor {
         Some(coeffs.iter().map(|&c| c as f32).collect())
     }
 
-    /// Threads for the resampling pass (the rest is single-threaded); default 1.
-    pub fn set_threads(&mut self, threads: usize) {
-        self.threads = threads.max(1);
-        if let Some(r) = &mut self.resampler {
-            r.set_threads(self.threads);
-        }
-    }
-
     /// Extra Lloyd steps for [`Method::Voronoi`] (default [`DEFAULT_REFINE`]): after the first
     /// assignment, re-seed each light at its centroid and assign again, `steps` times. Each step
     /// costs one more assignment pass. On the shared maps (median diffuse error, N = 16 / 64 / 256
@@ -253,16 +243,7 @@ impl Extractor {
 
     /// Resamples `map` into the domain square (cached table), leaving it in `self.image`.
     pub fn resample(&mut self, map: &EnvMap, domain: Domain, side: Option<usize>) -> &DomainImage {
-        if !self
-            .resampler
-            .as_ref()
-            .is_some_and(|r| r.fits(map, domain, side))
-        {
-            let mut r = Resampler::new(map.projection, map.width, map.height, domain, side);
-            r.set_threads(self.threads);
-            self.resampler = Some(r);
-        }
-        let r = self.resampler.as_mut().expect("just set");
+        let r = Resampler::reuse(&mut self.resampler, map, domain, side, 1);
         self.half_is_current = false;
         match &mut self.image {
             Some(img) => r.resample_into(map, img),

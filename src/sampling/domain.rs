@@ -602,6 +602,23 @@ impl Resampler {
         r
     }
 
+    /// The table in `cached` if it fits `map`, else a new one, on `threads` threads, put there: a
+    /// stream of same-sized frames builds its table once.
+    pub fn reuse<'a>(
+        cached: &'a mut Option<Resampler>,
+        map: &EnvMap,
+        domain: Domain,
+        side: Option<usize>,
+        threads: usize,
+    ) -> &'a mut Resampler {
+        if !cached.as_ref().is_some_and(|r| r.fits(map, domain, side)) {
+            let mut r = Resampler::new(map.projection, map.width, map.height, domain, side);
+            r.set_threads(threads);
+            return cached.insert(r);
+        }
+        cached.as_mut().expect("fits")
+    }
+
     /// Whether this table fits a map (same projection and size).
     pub fn fits(&self, map: &EnvMap, domain: Domain, side: Option<usize>) -> bool {
         self.projection == map.projection
