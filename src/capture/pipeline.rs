@@ -364,11 +364,10 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox, cfg:
         // after that)
         let mut complete: Option<(Instant, u64, Domain, Duration)> = None;
         let result = source.next_frame_by_rows(&mut map, &mut |m, rows| {
-            let last = rows.end == m.height;
-            let (arrived, arrived_ns) = (Instant::now(), now_ns());
+            let arrived = (rows.end == m.height).then(|| (Instant::now(), now_ns()));
             let domain = resampler.rows(m, rows, &mut image);
-            if last {
-                complete = Some((arrived, arrived_ns, domain, arrived.elapsed()));
+            if let Some((at, at_ns)) = arrived {
+                complete = Some((at, at_ns, domain, at.elapsed()));
             }
         });
         hub.metrics.stage_capture.record(t.elapsed());

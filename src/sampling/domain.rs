@@ -511,6 +511,14 @@ fn texel_of(domain: Domain, side: usize, dir: glam::DVec3) -> Option<u32> {
     Some((tj * side + ti) as u32)
 }
 
+/// The bands' texels; with no bands (one thread), one band of all `n`.
+fn texel_ranges<W>(bands: &[Band<W>], n: usize) -> Vec<std::ops::Range<usize>> {
+    if bands.is_empty() {
+        return std::iter::once(0..n).collect();
+    }
+    bands.iter().map(|b| b.texels.clone()).collect()
+}
+
 /// One band's share of a [`DomainImage`]: its first texel and its radiance, moment and
 /// luminance slices.
 struct BandSlice<'a>(usize, &'a mut [[f32; 3]], &'a mut [[f32; 3]], &'a mut [f32]);
@@ -643,14 +651,9 @@ impl Resampler {
         out.moment.resize(n, [0.0; 3]);
         out.luminance.resize(n, 0.0);
         let table = &self.table;
-        let ranges: Vec<std::ops::Range<usize>> = match table {
-            Table::PerPixel(t) if !t.bands.is_empty() => {
-                t.bands.iter().map(|b| b.texels.clone()).collect()
-            }
-            Table::LatLong(t) if !t.bands.is_empty() => {
-                t.bands.iter().map(|b| b.texels.clone()).collect()
-            }
-            _ => std::iter::once(0..n).collect(),
+        let ranges = match table {
+            Table::PerPixel(t) => texel_ranges(&t.bands, n),
+            Table::LatLong(t) => texel_ranges(&t.bands, n),
         };
         // Each band zeroes and fills its own slice of the image, in its own thread.
         let fill = |band: usize, slice: BandSlice| {
