@@ -140,19 +140,17 @@ async fn poll_health(
     let mut health = serde_json::Value::Null;
     for _ in 0..limit.as_millis() / 50 {
         tokio::time::sleep(Duration::from_millis(50)).await;
-        health = c
-            .get(format!("{base}/healthz"))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
+        health = get_json(c, &format!("{base}/healthz")).await;
         if done(&health) {
             break;
         }
     }
     health
+}
+
+/// `GET url` as a JSON document.
+async fn get_json(c: &reqwest::Client, url: &str) -> serde_json::Value {
+    c.get(url).send().await.unwrap().json().await.unwrap()
 }
 
 /// `GET {base}/metrics` as text.
@@ -872,14 +870,7 @@ async fn serve_reads_raw_frames_from_stdin() {
     .await;
     assert_eq!(health["source"]["state"], "ended", "{health}");
     assert_eq!(health["source"]["frames_captured"], 3);
-    let doc: serde_json::Value = c
-        .get(format!("http://{addr}/v1/lights/latest"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let doc = get_json(&c, &format!("http://{addr}/v1/lights/latest")).await;
     assert_valid(&lightset_validator(), &doc);
     assert_eq!(doc["diagnostics"]["projection"], "latlong");
     // The patch is at u ≈ 0.66, v ≈ 0.19: above the horizon, toward +X/−Z.

@@ -835,6 +835,24 @@ mod tests {
         }
     }
 
+    /// A 180° equidistant fisheye, centred.
+    fn fisheye_180() -> Projection {
+        Projection::Fisheye {
+            lens: crate::envmap::Lens::Equidistant,
+            fov_deg: 180.0,
+            centre: None,
+            radius: None,
+        }
+    }
+
+    /// A w×h map whose channels vary with the pixel at different periods and down the rows.
+    fn patterned_map(w: usize, h: usize, projection: Projection) -> EnvMap {
+        let pixels = (0..w * h)
+            .map(|k| [(k % 13) as f32, 1.0 + (k % 5) as f32, (k / w) as f32 * 0.1])
+            .collect();
+        EnvMap::from_pixels(w, h, pixels, projection).unwrap()
+    }
+
     #[test]
     fn threads_give_the_same_image() {
         let map = EnvMap::from_pixels(
@@ -860,21 +878,8 @@ mod tests {
     #[test]
     fn bands_of_the_per_pixel_table_give_the_same_image() {
         let (w, h) = (96, 80);
-        let projection = Projection::Fisheye {
-            lens: crate::envmap::Lens::Equidistant,
-            fov_deg: 180.0,
-            centre: None,
-            radius: None,
-        };
-        let map = EnvMap::from_pixels(
-            w,
-            h,
-            (0..w * h)
-                .map(|k| [(k % 13) as f32, 1.0 + (k % 5) as f32, (k / w) as f32 * 0.1])
-                .collect(),
-            projection,
-        )
-        .unwrap();
+        let projection = fisheye_180();
+        let map = patterned_map(w, h, projection);
         let a = Resampler::new(projection, w, h, Domain::Upper, None).resample(&map);
         for threads in [2, 3, 5, 1] {
             let mut r = Resampler::new(projection, w, h, Domain::Upper, None);
@@ -890,26 +895,12 @@ mod tests {
     /// (same deposits in the same order), for the per-pixel and the lat-long table.
     #[test]
     fn resampling_by_rows_matches_the_whole_frame_pass() {
-        let fisheye = Projection::Fisheye {
-            lens: crate::envmap::Lens::Equidistant,
-            fov_deg: 180.0,
-            centre: None,
-            radius: None,
-        };
         for (projection, domain, w, h) in [
-            (fisheye, Domain::Upper, 96, 80),
+            (fisheye_180(), Domain::Upper, 96, 80),
             (Projection::LatLong, Domain::Sphere, 160, 80),
             (Projection::LatLong, Domain::Upper, 160, 80),
         ] {
-            let map = EnvMap::from_pixels(
-                w,
-                h,
-                (0..w * h)
-                    .map(|k| [(k % 13) as f32, 1.0 + (k % 7) as f32, (k / w) as f32 * 0.1])
-                    .collect(),
-                projection,
-            )
-            .unwrap();
+            let map = patterned_map(w, h, projection);
             for threads in [1, 3] {
                 let mut r = Resampler::new(projection, w, h, domain, None);
                 r.set_threads(threads);
