@@ -79,13 +79,14 @@ async fn start_server(
     cfg: PipelineConfig,
     feed: Feed,
 ) -> (std::net::SocketAddr, Arc<Hub>) {
-    let file = FileSource::open(std::path::Path::new(MAP), None, DEFAULT_MAX_PIXELS, fps)
-        .expect("tests/data/sunrise.exr");
+    let path = std::path::Path::new(MAP);
     let source: Box<dyn FrameSource> = match feed {
-        Feed::File => Box::new(file),
+        Feed::File => Box::new(
+            FileSource::open(path, None, DEFAULT_MAX_PIXELS, fps).expect("tests/data/sunrise.exr"),
+        ),
         Feed::Synthetic => Box::new(SyntheticSource::new(SyntheticConfig::default(), fps)),
         Feed::Pipe => {
-            let map = EnvMap::open(std::path::Path::new(MAP), None, DEFAULT_MAX_PIXELS).unwrap();
+            let map = EnvMap::open(path, None, DEFAULT_MAX_PIXELS).expect("tests/data/sunrise.exr");
             let (reader, writer) = std::io::pipe().unwrap();
             let (w, h, projection) = (map.width, map.height, map.projection);
             std::thread::spawn(move || write_frames(writer, &map, fps));
