@@ -362,6 +362,37 @@ async fn max_hz_limits_the_rate() {
     assert!((8..=12).contains(&n), "{n} messages in 2 s at max_hz=5");
 }
 
+/// A client waiting out its `max_hz` interval is still answered: its close handshake completes
+/// at once, not when its next set is due.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_rate_limited_client_is_answered_between_its_sets() {
+    use futures_util::SinkExt;
+    let s = start_default(30.0).await;
+    let mut ws = connect(s.addr, "?lights=8&max_hz=0.2", None).await;
+    // The first set goes out when it is published, whether or not one was there on connect.
+    next_set(&mut ws, Duration::from_secs(2)).await;
+    // Newer sets arrive while the next one is held back for 5 s.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let asked = Instant::now();
+    ws.send(Message::Close(None)).await.unwrap();
+    let reply = tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            match ws.next().await {
+                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
+                Some(Ok(Message::Text(_))) => panic!("a set inside the max_hz interval"),
+                Some(Ok(_)) => {}
+            }
+        }
+    })
+    .await;
+    assert!(reply.is_ok(), "no close reply within 10 s");
+    let waited = asked.elapsed();
+    assert!(
+        waited < Duration::from_secs(1),
+        "the close was answered after {waited:?}, inside a 5 s max_hz interval"
+    );
+}
+
 /// POST of each shared map returns the LightSet `vemlight lights` prints for that file.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn post_returns_the_cli_lightset_for_every_map() {

@@ -10,6 +10,7 @@ use crate::metrics::Metrics;
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade, close_code};
 use axum::extract::{Query, State};
 use axum::response::Response;
+use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use std::collections::HashMap;
 use std::sync::atomic::Ordering::Relaxed;
@@ -65,67 +66,122 @@ async fn client_loop(
     let metrics = state.hub.metrics.clone();
     metrics.ws_clients.fetch_add(1, Relaxed);
     Metrics::inc(&metrics.ws_connections_total);
-    let (mut tx, mut rx) = socket.split();
+    let (tx, mut rx) = socket.split();
+    let mut out = Sender {
+        tx,
+        metrics: &metrics,
+        send_timeout: state.ws.send_timeout,
+        timed: false,
+    };
     let mut shutdown = state.hub.shutdown_tx.subscribe();
     let mut ping = tokio::time::interval_at(
         Instant::now() + state.ws.ping_interval,
         state.ws.ping_interval,
     );
     ping.set_missed_tick_behavior(MissedTickBehavior::Delay);
+    // A client that asked for `max_hz`: the earliest its next set may go, and whether a newer
+    // set is held until then. The loop keeps answering pings, close and shutdown meanwhile.
     let mut next_allowed = Instant::now();
+    let mut held = false;
+    let release = tokio::time::sleep_until(next_allowed);
+    tokio::pin!(release);
     // The current set, if any, goes out at once. It may be a frame old, so it is not a delivery
     // latency sample; nor are the sets of a client that asked for `max_hz`.
     sub.rx.mark_changed();
-    let mut timed = false;
     loop {
-        tokio::select! {
-            changed = sub.rx.changed() => {
+        let sent = tokio::select! {
+            changed = sub.rx.changed(), if !held => {
                 if changed.is_err() {
                     break; // the pipeline is gone
                 }
-                if let Some(interval) = min_interval {
-                    tokio::time::sleep_until(next_allowed).await;
-                    next_allowed = Instant::now() + interval;
+                if min_interval.is_some() && Instant::now() < next_allowed {
+                    held = true;
+                    release.as_mut().reset(next_allowed);
+                    continue;
                 }
-                let Some(set) = sub.rx.borrow_and_update().clone() else { continue };
-                let len = set.json.len() as u64;
-                let msg = Message::Text(set.json.clone());
-                match tokio::time::timeout(state.ws.send_timeout, tx.send(msg)).await {
-                    Ok(Ok(())) => {
-                        if timed {
-                            metrics.ws_delivery.observe(set.captured_at.elapsed());
-                        }
-                        timed = min_interval.is_none();
-                        Metrics::inc(&metrics.ws_messages_sent);
-                        metrics.ws_bytes_sent.fetch_add(len, Relaxed);
-                    }
-                    Ok(Err(_)) => break, // a peer that hung up is a normal end
-                    Err(_) => {
-                        tracing::info!("dropping a client that stopped reading");
-                        Metrics::inc(&metrics.ws_clients_stalled);
-                        break;
-                    }
-                }
+                out.send_latest(&mut sub).await
+            }
+            () = &mut release, if held => {
+                held = false;
+                out.send_latest(&mut sub).await
             }
             _ = ping.tick() => {
-                let sent = tokio::time::timeout(state.ws.send_timeout, tx.send(Message::Ping(Default::default()))).await;
+                let sent = tokio::time::timeout(state.ws.send_timeout, out.tx.send(Message::Ping(Default::default()))).await;
                 if !matches!(sent, Ok(Ok(()))) {
                     break;
                 }
+                continue;
             }
             incoming = rx.next() => match incoming {
                 None | Some(Err(_)) | Some(Ok(Message::Close(_))) => break,
-                Some(Ok(_)) => {} // pongs and anything a client says are ignored
+                Some(Ok(_)) => continue, // pongs and anything a client says are ignored
             },
             _ = shutdown.changed() => {
                 let close = Message::Close(Some(CloseFrame {
                     code: close_code::AWAY,
                     reason: "vemlight is shutting down".into(),
                 }));
-                let _ = tokio::time::timeout(Duration::from_secs(1), tx.send(close)).await;
+                let _ = tokio::time::timeout(Duration::from_secs(1), out.tx.send(close)).await;
                 break;
             }
+        };
+        match sent {
+            Sent::Yes => {
+                if let Some(interval) = min_interval {
+                    next_allowed = Instant::now() + interval;
+                } else {
+                    out.timed = true;
+                }
+            }
+            Sent::Nothing => {}
+            Sent::Gone => break,
         }
     }
     metrics.ws_clients.fetch_sub(1, Relaxed);
+}
+
+/// What became of a set meant for a client.
+enum Sent {
+    Yes,
+    /// Nothing is published yet.
+    Nothing,
+    /// The client hung up or stopped reading: end its loop.
+    Gone,
+}
+
+/// A client's sending half and what its sends are counted in.
+struct Sender<'a> {
+    tx: SplitSink<WebSocket, Message>,
+    metrics: &'a Metrics,
+    send_timeout: Duration,
+    /// Whether the sets sent are delivery-latency samples (not the first, not under `max_hz`).
+    timed: bool,
+}
+
+impl Sender<'_> {
+    /// Sends the newest set, counting it; a client whose socket does not take it within the send
+    /// timeout is dropped.
+    async fn send_latest(&mut self, sub: &mut Subscription) -> Sent {
+        let Some(set) = sub.rx.borrow_and_update().clone() else {
+            return Sent::Nothing;
+        };
+        let len = set.json.len() as u64;
+        let msg = Message::Text(set.json.clone());
+        match tokio::time::timeout(self.send_timeout, self.tx.send(msg)).await {
+            Ok(Ok(())) => {
+                if self.timed {
+                    self.metrics.ws_delivery.observe(set.captured_at.elapsed());
+                }
+                Metrics::inc(&self.metrics.ws_messages_sent);
+                self.metrics.ws_bytes_sent.fetch_add(len, Relaxed);
+                Sent::Yes
+            }
+            Ok(Err(_)) => Sent::Gone, // a peer that hung up is a normal end
+            Err(_) => {
+                tracing::info!("dropping a client that stopped reading");
+                Metrics::inc(&self.metrics.ws_clients_stalled);
+                Sent::Gone
+            }
+        }
+    }
 }
