@@ -12,7 +12,9 @@
 //!
 //! Beside 1, the floor under its delivery part on the same machine: a bare tokio-tungstenite
 //! broadcast of a message of the same size to the same clients (`VEMLIGHT_BENCH_FLOOR_LENS=500,8760`
-//! runs only that, at the sizes given).
+//! runs only that, at the sizes given). `VEMLIGHT_BENCH_ROUNDS=3` runs 1 and the floor three times
+//! over and ends with each line's median over the rounds, how many rounds met the 5 ms target, and
+//! the ratio to the floor's p99 from the same rounds: on a shared host the rounds show the noise.
 
 use futures_util::StreamExt;
 use std::sync::Arc;
@@ -334,7 +336,7 @@ async fn latency_from_another_process(
 
 /// Prints one latency line; `server` is what the daemon's own delivery histogram (`/metrics`,
 /// `vemlight_ws_delivery_seconds`) saw over the same messages: frame → handed to the socket.
-fn report(label: &str, samples: &[(f64, f64)], server: Option<&HistogramCounts>) {
+fn report(label: &str, samples: &[(f64, f64)], server: Option<&HistogramCounts>) -> (f64, f64) {
     let sorted = |f: fn(&(f64, f64)) -> f64| {
         let mut v: Vec<f64> = samples.iter().map(f).collect();
         v.sort_by(f64::total_cmp);
@@ -365,6 +367,147 @@ fn report(label: &str, samples: &[(f64, f64)], server: Option<&HistogramCounts>)
             server.quantile_bound(0.99) * 1e3,
         );
     }
+    (percentile(&total, 0.5), percentile(&total, 0.99))
+}
+
+/// Rounds of the latency part (`VEMLIGHT_BENCH_ROUNDS`, default 1): each runs every feed and the
+/// floor again, and the end prints each line's median over the rounds beside the floor's.
+const ROUNDS_ENV: &str = "VEMLIGHT_BENCH_ROUNDS";
+
+/// Each latency line's (p50, p99) in ms per round, in the order first measured.
+#[derive(Default)]
+struct Rounds(Vec<(String, Vec<(f64, f64)>)>);
+
+impl Rounds {
+    fn add(&mut self, label: String, p: (f64, f64)) {
+        match self.0.iter_mut().find(|(l, _)| *l == label) {
+            Some((_, v)) => v.push(p),
+            None => self.0.push((label, vec![p])),
+        }
+    }
+
+    fn get(&self, label: &str) -> Option<&[(f64, f64)]> {
+        self.0
+            .iter()
+            .find(|(l, _)| l == label)
+            .map(|(_, v)| v.as_slice())
+    }
+
+    /// The median over rounds of each line's p50 and p99, the p99's range, how many rounds
+    /// were under `target_ms` at p99, and the ratio of the median p99 to the floor's (the line
+    /// named `floor_of(label)`, measured in the same rounds with the same clients).
+    fn print(&self, target_ms: f64, floor_of: impl Fn(&str) -> Option<String>) {
+        let med = |mut v: Vec<f64>| median(&mut v);
+        for (label, v) in &self.0 {
+            let p50 = med(v.iter().map(|p| p.0).collect());
+            let p99s: Vec<f64> = v.iter().map(|p| p.1).collect();
+            let p99 = med(p99s.clone());
+            let (lo, hi) = p99s
+                .iter()
+                .fold((f64::INFINITY, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+            let under = p99s.iter().filter(|&&x| x < target_ms).count();
+            let floor = floor_of(label)
+                .and_then(|f| self.get(&f))
+                .map(|f| med(f.iter().map(|p| p.1).collect()));
+            let ratio = floor.map_or(String::new(), |f| {
+                format!(", {:.2} × the floor's p99", p99 / f)
+            });
+            println!(
+                "  {label}: p50 {p50:.2} ms, p99 {p99:.2} ms ({lo:.2}–{hi:.2}), p99 < {target_ms} ms in {under} of {} rounds{ratio}",
+                v.len()
+            );
+        }
+    }
+}
+
+/// One round of the latency figures: every feed, then the floor at the LightSet's size. Records
+/// each line's (p50, p99) in `lines` and returns the LightSet's size.
+async fn latency_round(lines: &mut Rounds, mut message_len: usize) -> usize {
+    // The default pipeline, then without the Lloyd steps (`serve --refine 0`), then fed by
+    // a camera pipe.
+    let default_refine = PipelineConfig::default().refine;
+    for (refine, feed) in [
+        (default_refine, Feed::File),
+        (0, Feed::File),
+        (default_refine, Feed::Pipe),
+        (default_refine, Feed::Synthetic),
+    ] {
+        let cfg = PipelineConfig {
+            refine,
+            ..PipelineConfig::default()
+        };
+        let (addr, hub) = start_server(30.0, cfg, feed).await;
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        message_len = hub.latest().map_or(message_len, |p| p.json.len());
+        let fed = match feed {
+            Feed::File => "sunrise.exr, whole frames",
+            Feed::Pipe => "sunrise.exr as raw rgbf32le frames through a pipe, by rows",
+            Feed::Synthetic => "the synthetic sky, 1024×512, by rows",
+        };
+        let short = match (feed, refine) {
+            (Feed::File, 0) => "whole file, 0 Lloyd steps",
+            (Feed::File, _) => "whole file",
+            (Feed::Pipe, _) => "pipe",
+            (Feed::Synthetic, _) => "synthetic",
+        };
+        println!(
+            "end-to-end latency, frame captured → LightSet received (64 lights, 30 frames/s, loopback, {refine} Lloyd steps; {fed})"
+        );
+        for clients in [1, 100] {
+            let before = hub.metrics.ws_delivery.snapshot();
+            let samples = latency(addr, clients, 8.0).await;
+            let server = hub.metrics.ws_delivery.snapshot().since(&before);
+            let label = format!("{clients:>3} client(s)");
+            let p = report(&label, &samples, Some(&server));
+            lines.add(format!("{short}: {}", label.trim()), p);
+        }
+        for (threads, label) in [
+            (0, "100 client(s) in a second process"),
+            (1, "100 client(s) in a second process, one thread"),
+        ] {
+            let before = hub.metrics.ws_delivery.snapshot();
+            let samples = latency_from_another_process(addr, 100, 8.0, threads).await;
+            let server = hub.metrics.ws_delivery.snapshot().since(&before);
+            let p = report(label, &samples, Some(&server));
+            lines.add(format!("{short}: {label}"), p);
+        }
+        let m = &hub.metrics;
+        println!(
+            "  frames captured {}, processed {}, dropped {}",
+            m.frames_captured.load(std::sync::atomic::Ordering::Relaxed),
+            m.frames_processed
+                .load(std::sync::atomic::Ordering::Relaxed),
+            m.frames_dropped.load(std::sync::atomic::Ordering::Relaxed)
+        );
+        println!(
+            "  mean stage times: resample {:.2} ms, warp {:.2} ms, assign {:.2} ms, sh {:.2} ms, \
+                 filter {:.3} ms, document {:.3} ms",
+            m.stage_resample.mean_ms(),
+            m.stage_warp.mean_ms(),
+            m.stage_assign.mean_ms(),
+            m.stage_sh.mean_ms(),
+            m.stage_filter.mean_ms(),
+            m.stage_publish.mean_ms(),
+        );
+        hub.shutdown();
+    }
+
+    // The machine's floor for the fan-out (see start_bare_broadcast).
+    let bare = start_bare_broadcast(30.0, message_len);
+    println!(
+        "the floor: a bare tokio-tungstenite server broadcasting a {message_len}-byte message 30 times/s (no pipeline)"
+    );
+    for (threads, label) in [
+        (0, "100 client(s) in a second process"),
+        (1, "100 client(s) in a second process, one thread"),
+    ] {
+        let samples = latency_from_another_process(bare.addr, 100, 8.0, threads).await;
+        let p = report(label, &samples, None);
+        lines.add(format!("the floor: {label}"), p);
+    }
+    drop(bare);
+
+    message_len
 }
 
 fn main() {
@@ -409,81 +552,28 @@ fn main() {
         });
         return;
     }
+    let rounds: usize = std::env::var(ROUNDS_ENV)
+        .ok()
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(1)
+        .max(1);
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
+        let mut lines = Rounds::default();
         let mut message_len = 0;
-        // The default pipeline, then without the Lloyd steps (`serve --refine 0`), then fed by
-        // a camera pipe.
-        let default_refine = PipelineConfig::default().refine;
-        for (refine, feed) in [
-            (default_refine, Feed::File),
-            (0, Feed::File),
-            (default_refine, Feed::Pipe),
-            (default_refine, Feed::Synthetic),
-        ] {
-            let cfg = PipelineConfig {
-                refine,
-                ..PipelineConfig::default()
-            };
-            let (addr, hub) = start_server(30.0, cfg, feed).await;
-            tokio::time::sleep(Duration::from_secs(1)).await;
-            message_len = hub.latest().map_or(message_len, |p| p.json.len());
-            let fed = match feed {
-                Feed::File => "sunrise.exr, whole frames",
-                Feed::Pipe => "sunrise.exr as raw rgbf32le frames through a pipe, by rows",
-                Feed::Synthetic => "the synthetic sky, 1024×512, by rows",
-            };
-            println!(
-                "end-to-end latency, frame captured → LightSet received (64 lights, 30 frames/s, loopback, {refine} Lloyd steps; {fed})"
-            );
-            for clients in [1, 100] {
-                let before = hub.metrics.ws_delivery.snapshot();
-                let samples = latency(addr, clients, 8.0).await;
-                let server = hub.metrics.ws_delivery.snapshot().since(&before);
-                report(&format!("{clients:>3} client(s)"), &samples, Some(&server));
+        for round in 1..=rounds {
+            if rounds > 1 {
+                println!("round {round} of {rounds}");
             }
-            for (threads, label) in [
-                (0, "100 client(s) in a second process"),
-                (1, "100 client(s) in a second process, one thread"),
-            ] {
-                let before = hub.metrics.ws_delivery.snapshot();
-                let samples = latency_from_another_process(addr, 100, 8.0, threads).await;
-                let server = hub.metrics.ws_delivery.snapshot().since(&before);
-                report(label, &samples, Some(&server));
-            }
-            let m = &hub.metrics;
-            println!(
-                "  frames captured {}, processed {}, dropped {}",
-                m.frames_captured.load(std::sync::atomic::Ordering::Relaxed),
-                m.frames_processed.load(std::sync::atomic::Ordering::Relaxed),
-                m.frames_dropped.load(std::sync::atomic::Ordering::Relaxed)
-            );
-            println!(
-                "  mean stage times: resample {:.2} ms, warp {:.2} ms, assign {:.2} ms, sh {:.2} ms, \
-                 filter {:.3} ms, document {:.3} ms",
-                m.stage_resample.mean_ms(),
-                m.stage_warp.mean_ms(),
-                m.stage_assign.mean_ms(),
-                m.stage_sh.mean_ms(),
-                m.stage_filter.mean_ms(),
-                m.stage_publish.mean_ms(),
-            );
-            hub.shutdown();
+            message_len = latency_round(&mut lines, message_len).await;
         }
-
-        // The machine's floor for the fan-out (see start_bare_broadcast).
-        let bare = start_bare_broadcast(30.0, message_len);
-        println!(
-            "the floor: a bare tokio-tungstenite server broadcasting a {message_len}-byte message 30 times/s (no pipeline)"
-        );
-        for (threads, label) in [
-            (0, "100 client(s) in a second process"),
-            (1, "100 client(s) in a second process, one thread"),
-        ] {
-            let samples = latency_from_another_process(bare.addr, 100, 8.0, threads).await;
-            report(label, &samples, None);
+        if rounds > 1 {
+            println!("over {rounds} rounds, the median of each line:");
+            lines.print(5.0, |label| {
+                let clients = label.split_once(": ")?.1;
+                (!label.starts_with("the floor")).then(|| format!("the floor: {clients}"))
+            });
         }
-        drop(bare);
 
         let (addr, hub) = start_server(1.0, PipelineConfig::default(), Feed::File).await;
         let (rps, mut times) = post_throughput(addr, 4, 10.0).await;
