@@ -362,6 +362,37 @@ async fn max_hz_limits_the_rate() {
     assert!((8..=12).contains(&n), "{n} messages in 2 s at max_hz=5");
 }
 
+/// Bad stream parameters are refused with 400 before the upgrade, rates too slow for any clock
+/// among them, and the client gauge counts only the clients there are.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_stream_parameters_are_refused() {
+    use tokio_tungstenite::tungstenite::Error;
+    let s = start_default(30.0).await;
+    for query in [
+        "lights=0",
+        "lights=many",
+        "max_hz=0",
+        "max_hz=-2",
+        "max_hz=nan",
+        "max_hz=1e-19",
+        "max_hz=1e-300",
+    ] {
+        let url = format!("ws://{}/v1/stream?{query}", s.addr);
+        match tokio_tungstenite::connect_async(url).await {
+            Err(Error::Http(resp)) => assert_eq!(resp.status(), 400, "{query}"),
+            Err(e) => panic!("{query}: {e}"),
+            Ok(_) => panic!("{query} was accepted"),
+        }
+    }
+    let mut ws = connect(s.addr, "?lights=8&max_hz=0.001", None).await;
+    next_set(&mut ws, Duration::from_secs(5)).await;
+    let text = metrics_text(&reqwest::Client::new(), &format!("http://{}", s.addr)).await;
+    assert!(
+        text.lines().any(|l| l == "vemlight_ws_clients 1"),
+        "one client connected:\n{text}"
+    );
+}
+
 /// A client waiting out its `max_hz` interval is still answered: its close handshake completes
 /// at once, not when its next set is due.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -378,14 +409,19 @@ async fn a_rate_limited_client_is_answered_between_its_sets() {
     let reply = tokio::time::timeout(Duration::from_secs(10), async {
         loop {
             match ws.next().await {
-                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
+                Some(Ok(Message::Close(_))) => return true,
+                None | Some(Err(_)) => return false,
                 Some(Ok(Message::Text(_))) => panic!("a set inside the max_hz interval"),
                 Some(Ok(_)) => {}
             }
         }
     })
     .await;
-    assert!(reply.is_ok(), "no close reply within 10 s");
+    assert_eq!(
+        reply,
+        Ok(true),
+        "no close reply (Ok(false): the connection just ended)"
+    );
     let waited = asked.elapsed();
     assert!(
         waited < Duration::from_secs(1),
@@ -839,6 +875,7 @@ async fn source_failures_are_reported_and_the_last_set_is_served() {
 /// sets at once, and SIGTERM stops it cleanly with exit code 0.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
+    use tokio::io::AsyncWriteExt;
     let (mut child, addr) = spawn_serve(&["--sky-size", "256x128"]);
     let mut ws = connect(addr, "?lights=16", None).await;
     let validator = lightset_validator();
@@ -848,12 +885,47 @@ async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
     assert_eq!(a["source"], "synthetic:256x128");
     assert_eq!(a["lights"].as_array().unwrap().len(), 16);
     assert!(b["frame"].as_u64() > a["frame"].as_u64());
+    // More clients, each of which must be told the daemon is going, and an upload that stalls
+    // after 10 of its 1000 bytes, which must not hold the daemon up.
+    let mut others = Vec::new();
+    for _ in 0..99 {
+        let mut ws = connect(addr, "?lights=16", None).await;
+        next_set(&mut ws, Duration::from_secs(10)).await;
+        others.push(ws);
+    }
+    let mut upload = tokio::net::TcpStream::connect(addr).await.unwrap();
+    upload
+        .write_all(
+            b"POST /v1/lights HTTP/1.1\r\nHost: x\r\nContent-Type: image/x-exr\r\n\
+              Content-Length: 1000\r\n\r\nv/1\x01\x02\0\0\0\0\0",
+        )
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
     let kill = std::process::Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
         .status()
         .unwrap();
     assert!(kill.success());
-    let deadline = Instant::now() + Duration::from_secs(10);
+    others.push(ws);
+    let closes = others.into_iter().map(|mut ws| {
+        tokio::spawn(async move {
+            loop {
+                match tokio::time::timeout(Duration::from_secs(10), ws.next()).await {
+                    Ok(Some(Ok(Message::Close(Some(f))))) => return Some(u16::from(f.code)),
+                    Ok(Some(Ok(_))) => continue,
+                    _ => return None, // the connection ended without a close frame
+                }
+            }
+        })
+    });
+    let mut codes = Vec::new();
+    for c in closes.collect::<Vec<_>>() {
+        codes.push(c.await.unwrap());
+    }
+    let told = codes.iter().filter(|c| **c == Some(1001)).count();
+    assert_eq!(told, 100, "clients sent a 1001 close frame: {told} of 100");
+    let deadline = Instant::now() + vemlight::server::SHUTDOWN_GRACE + Duration::from_secs(5);
     let status = loop {
         if let Some(s) = child.try_wait().unwrap() {
             break s;
@@ -862,6 +934,7 @@ async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
         std::thread::sleep(Duration::from_millis(50));
     };
     assert!(status.success(), "{status:?}");
+    drop(upload);
 }
 
 /// Raw frames on stdin: the daemon serves them (512×256 rgbf32le frames: read and resampled in

@@ -188,23 +188,61 @@ pub fn app(state: AppState) -> Router {
     }
 }
 
-/// Serves [`app`] on `listener` until `shutdown` resolves. Every connection gets TCP_NODELAY: a
-/// LightSet is written as a few small frames, and Nagle's algorithm would hold them back for the
-/// peer's delayed ACK (measured: p99 delivery 9 ms on loopback without it).
+/// How long open requests and WebSocket clients get to finish once shutdown has begun.
+pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Serves [`app`] on `listener` until `shutdown` resolves, then shuts the hub down (streams get
+/// a close frame, the pipeline stops) and returns once open requests have finished and every
+/// WebSocket client has gone, or after [`SHUTDOWN_GRACE`]: a client that stalls mid-upload does
+/// not hold the daemon up. Every connection gets TCP_NODELAY: a LightSet is written as a few
+/// small frames, and Nagle's algorithm would hold them back for the peer's delayed ACK
+/// (measured: p99 delivery 9 ms on loopback without it).
 pub async fn run(
     listener: tokio::net::TcpListener,
     state: AppState,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
     use axum::serve::ListenerExt;
+    use std::future::IntoFuture;
     let listener = listener.tap_io(|tcp| {
         if let Err(e) = tcp.set_nodelay(true) {
             tracing::debug!("cannot set TCP_NODELAY: {e}");
         }
     });
-    axum::serve(listener, app(state))
-        .with_graceful_shutdown(shutdown)
+    let hub = state.hub.clone();
+    let (begun_tx, begun_rx) = tokio::sync::oneshot::channel::<()>();
+    let signal = async move {
+        shutdown.await;
+        let _ = begun_tx.send(());
+    };
+    let server = axum::serve(listener, app(state))
+        .with_graceful_shutdown(signal)
+        .into_future();
+    tokio::pin!(server);
+    tokio::select! {
+        served = &mut server => return served,
+        _ = begun_rx => {}
+    }
+    hub.shutdown();
+    let deadline = tokio::time::Instant::now() + SHUTDOWN_GRACE;
+    if tokio::time::timeout_at(deadline, &mut server)
         .await
+        .is_err()
+    {
+        tracing::warn!("requests still open {SHUTDOWN_GRACE:?} after shutdown began: closing them");
+    }
+    // Upgraded connections are not the server's to wait for: wait for the clients' loops, which
+    // send their close frame and end.
+    while hub
+        .metrics
+        .ws_clients
+        .load(std::sync::atomic::Ordering::Relaxed)
+        > 0
+        && tokio::time::Instant::now() < deadline
+    {
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+    Ok(())
 }
 
 /// Rejects requests without the configured bearer token (constant-time comparison). A browser's

@@ -13,6 +13,7 @@ use axum::response::Response;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
 use std::collections::HashMap;
+use std::sync::Arc;
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::Duration;
 use tokio::time::{Instant, MissedTickBehavior};
@@ -22,6 +23,10 @@ pub const SUBPROTOCOL: &str = "vemlight.v1";
 
 /// Largest message a client may send (bytes).
 const CLIENT_MESSAGE_LIMIT: usize = 64 * 1024;
+
+/// The slowest rate a client may ask for: one set every 1000 s. (A rate much closer to zero
+/// would make an interval no clock can add.)
+const MIN_MAX_HZ: f64 = 0.001;
 
 /// Bytes tungstenite reads from a client socket at a time. Its default, 128 KiB, is zeroed on
 /// every poll of the read half, which this loop does each time a LightSet goes out: with 100
@@ -38,10 +43,11 @@ pub async fn stream(
     let lights = parse_param::<usize>(&q, "lights")?.unwrap_or(state.hub.default_lights());
     let max_hz = parse_param::<f64>(&q, "max_hz")?;
     if let Some(hz) = max_hz
-        && !(hz.is_finite() && hz > 0.0)
+        && !(hz.is_finite() && hz >= MIN_MAX_HZ)
     {
         return Err(ApiError::BadRequest(format!(
-            "max_hz must be a positive number, got {hz}"
+            "max_hz must be a number of at least {MIN_MAX_HZ} (one set in {} s), got {hz}",
+            1.0 / MIN_MAX_HZ
         )));
     }
     let sub = state.hub.subscribe(lights).map_err(ApiError::BadRequest)?;
@@ -64,8 +70,7 @@ async fn client_loop(
     state: AppState,
 ) {
     let metrics = state.hub.metrics.clone();
-    metrics.ws_clients.fetch_add(1, Relaxed);
-    Metrics::inc(&metrics.ws_connections_total);
+    let _connected = ConnectedClient::count(&metrics);
     let (tx, mut rx) = socket.split();
     let mut out = Sender {
         tx,
@@ -113,7 +118,12 @@ async fn client_loop(
                 continue;
             }
             incoming = rx.next() => match incoming {
-                None | Some(Err(_)) | Some(Ok(Message::Close(_))) => break,
+                None | Some(Err(_)) => break,
+                Some(Ok(Message::Close(_))) => {
+                    // tungstenite has queued the reply that completes the close handshake.
+                    let _ = tokio::time::timeout(Duration::from_secs(1), out.tx.flush()).await;
+                    break;
+                }
                 Some(Ok(_)) => continue, // pongs and anything a client says are ignored
             },
             _ = shutdown.changed() => {
@@ -137,7 +147,23 @@ async fn client_loop(
             Sent::Gone => break,
         }
     }
-    metrics.ws_clients.fetch_sub(1, Relaxed);
+}
+
+/// Counts a client in `vemlight_ws_clients` for as long as it lives, however its loop ends.
+struct ConnectedClient(Arc<Metrics>);
+
+impl ConnectedClient {
+    fn count(metrics: &Arc<Metrics>) -> Self {
+        metrics.ws_clients.fetch_add(1, Relaxed);
+        Metrics::inc(&metrics.ws_connections_total);
+        ConnectedClient(metrics.clone())
+    }
+}
+
+impl Drop for ConnectedClient {
+    fn drop(&mut self) {
+        self.0.ws_clients.fetch_sub(1, Relaxed);
+    }
 }
 
 /// What became of a set meant for a client.
