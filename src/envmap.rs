@@ -786,9 +786,12 @@ fn corrupt(format: &'static str, e: image::ImageError) -> InputError {
     }
 }
 
+/// Bytes [`sniff`] needs to tell a format.
+pub const MAGIC_LEN: usize = 4;
+
 /// Identifies the format from the magic bytes, never from a name or content type.
-fn sniff(bytes: &[u8]) -> Result<(image::ImageFormat, &'static str), InputError> {
-    const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+pub fn sniff(bytes: &[u8]) -> Result<(image::ImageFormat, &'static str), InputError> {
+    const EXR_MAGIC: [u8; MAGIC_LEN] = [0x76, 0x2f, 0x31, 0x01];
     if bytes.starts_with(&EXR_MAGIC) {
         Ok((image::ImageFormat::OpenExr, "OpenEXR"))
     } else if bytes.starts_with(b"#?") {

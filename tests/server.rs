@@ -95,6 +95,9 @@ struct Server {
     hub: Arc<Hub>,
 }
 
+/// The test servers' upload idle timeout (the daemon's is 10 s).
+const UPLOAD_IDLE: Duration = Duration::from_secs(2);
+
 async fn start(source: MemorySource, token: Option<&str>, max_body: usize) -> Server {
     start_with_cors(source, token, max_body, CorsOrigins::None).await
 }
@@ -107,10 +110,12 @@ async fn start_with_cors(
 ) -> Server {
     let hub = Hub::new(64, 16, "memory");
     pipeline::spawn(Box::new(source), hub.clone(), PipelineConfig::default()).unwrap();
+    let mut uploads = Uploads::new(max_body, 16 * 1024 * 1024, 2);
+    uploads.idle_timeout = UPLOAD_IDLE;
     let state = AppState::new(
         hub.clone(),
         token.map(String::from),
-        Uploads::new(max_body, 16 * 1024 * 1024, 2),
+        uploads,
         WsConfig {
             ping_interval: Duration::from_secs(30),
             send_timeout: Duration::from_secs(5),
@@ -507,8 +512,16 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
     let big = vec![0u8; 2 << 20];
     let p = problem(c.post(&url).body(big.clone()).send().await.unwrap(), 413).await;
     assert!(p["detail"].as_str().unwrap().contains("limit"));
-    let chunks: Vec<Result<Vec<u8>, std::io::Error>> =
-        (0..32).map(|_| Ok(vec![0x76u8; 128 * 1024])).collect();
+    // (It starts like an EXR: a body that does not is refused 415 from its first bytes.)
+    let chunks: Vec<Result<Vec<u8>, std::io::Error>> = (0..32)
+        .map(|k| {
+            let mut chunk = vec![0u8; 128 * 1024];
+            if k == 0 {
+                chunk[..4].copy_from_slice(&[0x76, 0x2f, 0x31, 0x01]);
+            }
+            Ok(chunk)
+        })
+        .collect();
     let streamed = reqwest::Body::wrap_stream(futures_util::stream::iter(chunks));
     problem(c.post(&url).body(streamed).send().await.unwrap(), 413).await;
     // 413: a small body whose header claims 100 000 × 100 000 pixels.
@@ -518,6 +531,18 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
 
     // 415: not an EXR/HDR, a wrong content type, an empty body.
     problem(c.post(&url).body("hello").send().await.unwrap(), 415).await;
+    // … said from the first bytes: a 1 MiB body of something else, whose rest never comes.
+    {
+        use tokio::io::AsyncWriteExt;
+        let mut tcp = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        tcp.write_all(
+            b"POST /v1/lights HTTP/1.1\r\nHost: x\r\nContent-Length: 1000000\r\n\r\nGIF89a",
+        )
+        .await
+        .unwrap();
+        let line = status_line(&mut tcp, Duration::from_secs(1)).await;
+        assert!(line.starts_with("HTTP/1.1 415"), "{line}");
+    }
     problem(
         c.post(&url)
             .header("content-type", "application/json")
@@ -572,7 +597,7 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
         .unwrap();
     assert_eq!(h.status(), 200);
     let m = metrics_text(&c, &format!("http://{}", s.addr)).await;
-    assert!(m.contains("vemlight_http_lights_errors_total 13"), "{m}");
+    assert!(m.contains("vemlight_http_lights_errors_total 14"), "{m}");
     assert!(m.contains("\nvemlight_source_up 1\n"), "{m}");
 }
 
@@ -702,6 +727,69 @@ async fn content_length_is_refused_before_reading() {
     assert!(reply.starts_with("HTTP/1.1 413"), "{reply}");
     assert!(reply.contains("application/problem+json"), "{reply}");
     assert!(started.elapsed() < Duration::from_secs(1));
+}
+
+/// The status line of the answer to a raw request on `tcp`, within `limit`.
+async fn status_line(tcp: &mut tokio::net::TcpStream, limit: Duration) -> String {
+    use tokio::io::AsyncReadExt;
+    let mut reply = vec![0u8; 4096];
+    let n = tokio::time::timeout(limit, tcp.read(&mut reply))
+        .await
+        .expect("an answer in time")
+        .unwrap();
+    String::from_utf8_lossy(&reply[..n])
+        .lines()
+        .next()
+        .unwrap_or("")
+        .to_string()
+}
+
+/// Uploads that stall are answered 408 once nothing has arrived for the idle timeout; uploads
+/// that trickle in hold at most the buffer budget (twice the decoding concurrency at the body
+/// limit), beyond which another upload waits and then gets 503; room that frees up is used.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_uploads_time_out_and_are_held_to_a_budget() {
+    use tokio::io::AsyncWriteExt;
+    let s = start(MemorySource::new(vec![small_sky()], 5.0), None, 1 << 20).await;
+    let head = b"POST /v1/lights HTTP/1.1\r\nHost: x\r\nContent-Type: image/x-exr\r\n\
+                 Content-Length: 1048576\r\n\r\nv/1\x01";
+    // Four uploads at the 1 MiB limit fill the 4 MiB budget (2 decoders × 2), each sending a
+    // byte every 300 ms: never idle for the 2 s timeout.
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let mut tricklers = Vec::new();
+    for _ in 0..4 {
+        let mut tcp = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        tcp.write_all(head).await.unwrap();
+        let stop = stop.clone();
+        tricklers.push(tokio::spawn(async move {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                tokio::time::sleep(Duration::from_millis(300)).await;
+                if tcp.write_all(b"\0").await.is_err() {
+                    break;
+                }
+            }
+            tcp
+        }));
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let c = reqwest::Client::new();
+    let url = format!("http://{}/v1/lights?lights=8", s.addr);
+    let map = std::fs::read(data_path("studio.exr")).unwrap();
+    let waited = Instant::now();
+    let r = c.post(&url).body(map.clone()).send().await.unwrap();
+    assert_eq!(r.status(), 503, "an upload beyond the budget");
+    assert!(waited.elapsed() >= UPLOAD_IDLE - Duration::from_millis(100));
+    // One trickler stops: it is answered 408 and its room goes to the next upload.
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let mut stalled = Vec::new();
+    for t in tricklers {
+        stalled.push(t.await.unwrap());
+    }
+    let line = status_line(&mut stalled[0], UPLOAD_IDLE + Duration::from_secs(3)).await;
+    assert!(line.starts_with("HTTP/1.1 408"), "{line}");
+    drop(stalled);
+    let r = c.post(&url).body(map).send().await.unwrap();
+    assert_eq!(r.status(), 200);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -14,6 +14,9 @@ pub enum ApiError {
     /// 401: the bearer token is missing or wrong.
     #[error("a valid 'Authorization: Bearer' token is required")]
     Unauthorized,
+    /// 408: the upload stalled or took too long.
+    #[error("{0}")]
+    Timeout(String),
     /// 413: the body or the image it holds is larger than allowed.
     #[error("{0}")]
     TooLarge(String),
@@ -52,6 +55,7 @@ impl ApiError {
             ApiError::UnsupportedMedia(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             ApiError::Unprocessable(_) => StatusCode::UNPROCESSABLE_ENTITY,
             ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::Timeout(_) => StatusCode::REQUEST_TIMEOUT,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
         }
     }

@@ -114,19 +114,53 @@ pub struct Uploads {
     pub max_pixels: u64,
     /// Decoding and extraction run on blocking threads, this many at once.
     permits: Semaphore,
+    /// Bytes of request bodies held at once, in KiB: each upload reserves its declared length
+    /// (`max_body` when it declares none) before reading, so that many large uploads arriving
+    /// together (or stalling) cannot hold more memory than this between them.
+    buffered_kib: Semaphore,
+    /// An upload that sends nothing for this long is answered 408; one that waits this long for
+    /// room in the buffer budget, 503.
+    pub idle_timeout: Duration,
+    /// An upload that is not in after this long in all is answered 408.
+    pub total_timeout: Duration,
     /// Idle extractors, whose cached tables make repeated same-size uploads cheap.
     extractors: Mutex<Vec<Extractor>>,
 }
 
 impl Uploads {
+    /// Limits for bodies of up to `max_body` bytes holding up to `max_pixels` pixels, decoded
+    /// `concurrency` at a time; bodies of twice that many uploads at their largest may be held
+    /// at once.
     pub fn new(max_body: usize, max_pixels: u64, concurrency: usize) -> Self {
+        let concurrency = concurrency.max(1);
+        let budget_kib = kib(max_body).saturating_mul(2 * concurrency);
         Uploads {
             max_body,
             max_pixels,
-            permits: Semaphore::new(concurrency.max(1)),
+            permits: Semaphore::new(concurrency),
+            buffered_kib: Semaphore::new(budget_kib.min(Semaphore::MAX_PERMITS)),
+            idle_timeout: Duration::from_secs(10),
+            total_timeout: Duration::from_secs(120),
             extractors: Mutex::new(Vec::new()),
         }
     }
+
+    /// Room for a body of `bytes` in the buffer budget, waiting up to `idle_timeout` for it.
+    async fn reserve(&self, bytes: usize) -> Result<tokio::sync::SemaphorePermit<'_>, ApiError> {
+        let n = u32::try_from(kib(bytes)).unwrap_or(u32::MAX);
+        match tokio::time::timeout(self.idle_timeout, self.buffered_kib.acquire_many(n)).await {
+            Ok(Ok(permit)) => Ok(permit),
+            Ok(Err(_)) => Err(ApiError::Unavailable("shutting down".into())),
+            Err(_) => Err(ApiError::Unavailable(
+                "too many uploads are being received at once; retry shortly".into(),
+            )),
+        }
+    }
+}
+
+/// Bytes in KiB, rounded up.
+fn kib(bytes: usize) -> usize {
+    bytes.div_ceil(1024)
 }
 
 /// WebSocket timing.
@@ -471,10 +505,27 @@ async fn post_lights_inner(
             limits.max_body
         )));
     }
+    // Room for the body first (an upload without a length may be as large as allowed).
+    let _buffered = limits
+        .reserve(declared.map_or(limits.max_body, |len| len as usize))
+        .await?;
+    let deadline = tokio::time::Instant::now() + limits.total_timeout;
     let mut bytes = Vec::with_capacity(declared.unwrap_or(0) as usize);
-    while let Some(chunk) = stream.next().await {
-        let chunk =
-            chunk.map_err(|e| ApiError::BadRequest(format!("the upload broke off: {e}")))?;
+    let mut sniffed = false;
+    loop {
+        let idle = (tokio::time::Instant::now() + limits.idle_timeout).min(deadline);
+        let chunk = match tokio::time::timeout_at(idle, stream.next()).await {
+            Ok(Some(chunk)) => {
+                chunk.map_err(|e| ApiError::BadRequest(format!("the upload broke off: {e}")))?
+            }
+            Ok(None) => break,
+            Err(_) => {
+                return Err(ApiError::Timeout(format!(
+                    "the upload stalled: nothing arrived for {:?}, or it took over {:?} in all",
+                    limits.idle_timeout, limits.total_timeout
+                )));
+            }
+        };
         if bytes.len() + chunk.len() > limits.max_body {
             drain(&mut stream).await;
             return Err(ApiError::TooLarge(format!(
@@ -483,6 +534,14 @@ async fn post_lights_inner(
             )));
         }
         bytes.extend_from_slice(&chunk);
+        // Not an EXR or HDR: say so from the first bytes, not after reading the rest.
+        if !sniffed && bytes.len() >= crate::envmap::MAGIC_LEN {
+            sniffed = true;
+            if let Err(e) = crate::envmap::sniff(&bytes) {
+                drain(&mut stream).await;
+                return Err(e.into());
+            }
+        }
     }
     if bytes.is_empty() {
         return Err(ApiError::UnsupportedMedia(
