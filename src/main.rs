@@ -297,6 +297,10 @@ fn run_lights(args: LightsArgs) -> anyhow::Result<()> {
 
 /// `vemlight serve`: builds the source, starts the pipeline threads and serves until SIGINT or
 /// SIGTERM.
+/// The frame rates `--fps` may name: one frame in 1000 s up to 1000 frames/s.
+const MIN_FPS: f64 = 0.001;
+const MAX_FPS: f64 = 1000.0;
+
 fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
     use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
     use vemlight::server::{AppState, CorsOrigins, Uploads, WsConfig, run, shutdown_signal};
@@ -309,8 +313,17 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
 
-    if !(args.fps.is_finite() && args.fps > 0.0) {
-        bail!("--fps must be a positive number, got {}", args.fps);
+    if !(args.fps.is_finite() && (MIN_FPS..=MAX_FPS).contains(&args.fps)) {
+        bail!(
+            "--fps must be between {MIN_FPS} and {MAX_FPS}, got {}",
+            args.fps
+        );
+    }
+    if args.token.as_deref().is_some_and(|t| t.trim().is_empty()) {
+        bail!(
+            "--token (or VEMLIGHT_TOKEN) is set but empty: give a token, or unset it to serve \
+             without one"
+        );
     }
     if !(1..=vemlight::sampling::N_MAX).contains(&args.lights) {
         bail!(
@@ -401,6 +414,12 @@ fn make_source(
             let (width, height) = args.sky_size;
             if width != 2 * height || height < 8 {
                 bail!("--sky-size must be 2:1 and at least 16x8, got {width}x{height}");
+            }
+            if (width as u64).saturating_mul(height as u64) > args.max_pixels {
+                bail!(
+                    "--sky-size {width}x{height} is over --max-pixels ({})",
+                    args.max_pixels
+                );
             }
             let defaults = SyntheticConfig::default();
             let cfg = SyntheticConfig {

@@ -374,10 +374,14 @@ fn serve_configuration_errors_exit_with_a_message() {
             vec!["serve", "--source", "stdin"],
             "needs --width and --height",
         ),
+        (vec!["serve", "--fps", "0"], "--fps must be between"),
+        // A rate too slow for a clock to add its period.
+        (vec!["serve", "--fps", "1e-30"], "--fps must be between"),
         (
-            vec!["serve", "--fps", "0"],
-            "--fps must be a positive number",
+            vec!["serve", "--sky-size", "2000000x1000000"],
+            "is over --max-pixels",
         ),
+        (vec!["serve", "--token", ""], "set but empty"),
         (
             vec!["serve", "--lights", "0"],
             "--lights must be between 1 and 1024",
@@ -396,6 +400,13 @@ fn serve_configuration_errors_exit_with_a_message() {
         let out = vemlight(&args);
         assert_fails_with(&out, needle);
     }
+    // An empty token in the environment is a mistake, not a request for an open daemon.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(["serve", "--sky-size", "64x32"])
+        .env("VEMLIGHT_TOKEN", "")
+        .output()
+        .unwrap();
+    assert_fails_with(&out, "set but empty");
     // A port already taken is a clear error too.
     let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = taken.local_addr().unwrap().to_string();

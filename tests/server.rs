@@ -833,6 +833,22 @@ async fn the_token_is_enforced_everywhere_but_healthz() {
             .await
             .unwrap();
         assert_eq!(r.status(), 200, "{path}");
+        // The scheme name is case-insensitive; the token is not, and must follow it.
+        for (value, status) in [
+            ("bearer s3cret", 200),
+            ("BEARER s3cret", 200),
+            ("Bearer S3CRET", 401),
+            ("Bearers3cret", 401),
+            ("Basic s3cret", 401),
+        ] {
+            let r = c
+                .get(format!("{base_url}{path}"))
+                .header("authorization", value)
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status(), status, "{path} with '{value}'");
+        }
     }
     let r = c
         .post(format!("{base_url}/v1/lights"))

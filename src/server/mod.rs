@@ -279,6 +279,15 @@ pub async fn run(
     Ok(())
 }
 
+/// The token of an `Authorization: Bearer <token>` value; the scheme name is case-insensitive
+/// (RFC 9110 §11.1).
+fn bearer_credentials(value: &str) -> Option<&str> {
+    let (scheme, token) = value.split_once(' ')?;
+    scheme
+        .eq_ignore_ascii_case("bearer")
+        .then(|| token.trim_start_matches(' '))
+}
+
 /// Rejects requests without the configured bearer token (constant-time comparison). A browser's
 /// WebSocket cannot send headers, so `GET /v1/stream` also takes the token as the `access_token`
 /// query parameter (RFC 6750 §2.3); nowhere else, as URLs end up in logs.
@@ -288,7 +297,7 @@ async fn require_token(State(state): State<AppState>, req: Request, next: Next) 
             .headers()
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
+            .and_then(bearer_credentials);
         let from_query = || {
             if req.uri().path() != "/v1/stream" {
                 return None;
