@@ -959,6 +959,15 @@ async fn source_failures_are_reported_and_the_last_set_is_served() {
     // A new subscriber still gets the last good set at once.
     let mut ws = connect(s.addr, "", None).await;
     next_set(&mut ws, Duration::from_secs(2)).await;
+    // So do light counts nobody had asked for while frames came: from the last good frame.
+    let eight = get_json(&c, &format!("{url}/v1/lights/latest?lights=8")).await;
+    assert_valid(&lightset_validator(), &eight);
+    assert_eq!(eight["lights"].as_array().unwrap().len(), 8);
+    assert_eq!(eight["frame"], doc["frame"], "the last good frame");
+    let mut twelve = connect(s.addr, "?lights=12", None).await;
+    let set = next_set(&mut twelve, Duration::from_secs(2)).await;
+    assert_eq!(set["lights"].as_array().unwrap().len(), 12);
+    assert_eq!(set["frame"], doc["frame"]);
     // Shutdown closes streams cleanly (1001 going away).
     s.hub.shutdown();
     let end = tokio::time::timeout(Duration::from_secs(3), async {

@@ -219,6 +219,15 @@ impl Hub {
         ch.keys().copied().collect()
     }
 
+    /// The light counts asked for that have no set yet.
+    fn unserved_light_counts(&self) -> Vec<usize> {
+        let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
+        ch.iter()
+            .filter(|(_, c)| c.tx.borrow().is_none())
+            .map(|(&n, _)| n)
+            .collect()
+    }
+
     fn publish(&self, lights: usize, p: Arc<Published>) {
         let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(c) = ch.get(&lights) {
@@ -278,14 +287,14 @@ struct Mailbox {
 #[derive(Default)]
 struct MailboxState {
     frame: Option<Frame>,
-    closed: bool,
     /// Maps and images handed back by the processing thread for reuse.
     spare: Vec<EnvMap>,
     spare_images: Vec<DomainImage>,
 }
 
-/// Starts the capture and processing threads. They run until the source ends (processing stops
-/// after its last frame; the hub keeps serving the last set) or [`Hub::shutdown`].
+/// Starts the capture and processing threads. Capture runs until the source ends or fails for
+/// good; processing until [`Hub::shutdown`], serving light counts asked for later from the last
+/// frame.
 pub fn spawn(
     mut source: Box<dyn FrameSource>,
     hub: Arc<Hub>,
@@ -431,17 +440,23 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox, cfg:
             }
         }
     }
-    let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
-    s.closed = true;
-    mailbox.ready.notify_all();
 }
 
+/// How often the processing thread, with no new frame, looks for light counts that clients ask
+/// for and that have no set yet (the source has ended, failed or stalled): those are served from
+/// the last frame.
+const UNSERVED_POLL: Duration = Duration::from_millis(50);
+
 fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, source: &str) {
-    let mut extractor = Extractor::new();
-    extractor.set_refine(cfg.refine);
-    let mut filters: HashMap<usize, TemporalFilter> = HashMap::new();
-    let mut seqs: HashMap<usize, u64> = HashMap::new();
-    let filter_info = FilterInfo::new(&cfg.filter, fps);
+    let mut p = Processor {
+        extractor: Extractor::new(),
+        filters: HashMap::new(),
+        seqs: HashMap::new(),
+        filter_info: FilterInfo::new(&cfg.filter, fps),
+    };
+    p.extractor.set_refine(cfg.refine);
+    // The newest processed frame (its image stays in the extractor).
+    let mut last: Option<LastFrame> = None;
     loop {
         let frame = {
             let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
@@ -450,17 +465,28 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
                     return;
                 }
                 if let Some(f) = s.frame.take() {
-                    break f;
+                    break Some(f);
                 }
-                if s.closed {
-                    return;
+                if last.is_some() && !hub.unserved_light_counts().is_empty() {
+                    break None;
                 }
                 s = mailbox
                     .ready
-                    .wait_timeout(s, Duration::from_millis(200))
+                    .wait_timeout(s, UNSERVED_POLL)
                     .unwrap_or_else(|e| e.into_inner())
                     .0;
             }
+        };
+        let Some(frame) = frame else {
+            // No new frame for a while: serve the counts nobody has a set for from the last one.
+            let counts = hub.unserved_light_counts();
+            if let Some(l) = &last {
+                let extractions = p
+                    .extractor
+                    .extract_many_resampled(&l.map, cfg.method, &counts);
+                p.publish(hub, cfg, source, l, Duration::ZERO, &counts, extractions);
+            }
+            continue;
         };
         let Frame {
             map,
@@ -472,35 +498,94 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             captured_at,
         } = frame;
         let counts = hub.light_counts();
-        let previous_image = extractor.put_image(image);
-        let extractions = extractor.extract_many_resampled(&map, cfg.method, &counts);
-        let m = &hub.metrics;
+        let previous_image = p.extractor.put_image(image);
+        let extractions = p
+            .extractor
+            .extract_many_resampled(&map, cfg.method, &counts);
         if let Some(first) = extractions.first() {
-            m.stage_warp.record_secs(first.timings.warp_s);
+            hub.metrics.stage_warp.record_secs(first.timings.warp_s);
         }
-        let t = Instant::now();
-        let sh9 = if cfg.sh9 { extractor.sh9() } else { None };
-        m.stage_sh.record(t.elapsed());
         // Forget the filter state of light counts nobody asks for any more.
-        filters.retain(|n, _| counts.contains(n));
+        p.filters.retain(|n, _| counts.contains(n));
+        let this = LastFrame {
+            map,
+            domain,
+            index,
+            t_capture_ns,
+            captured_at,
+        };
+        p.publish(hub, cfg, source, &this, resample_tail, &counts, extractions);
+        Metrics::inc(&hub.metrics.frames_processed);
+        let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(older) = last.replace(this) {
+            s.spare.push(older.map);
+        }
+        s.spare_images.extend(previous_image);
+    }
+}
+
+/// A processed frame, kept to serve light counts asked for after it.
+struct LastFrame {
+    map: EnvMap,
+    domain: Domain,
+    index: u64,
+    t_capture_ns: u64,
+    captured_at: Instant,
+}
+
+/// The processing thread's state across frames: extraction caches, each light count's filter and
+/// sequence number.
+struct Processor {
+    extractor: Extractor,
+    filters: HashMap<usize, TemporalFilter>,
+    seqs: HashMap<usize, u64>,
+    filter_info: FilterInfo,
+}
+
+impl Processor {
+    /// Filters each light count's extraction of `frame`, builds its LightSet and publishes it.
+    #[allow(clippy::too_many_arguments)]
+    fn publish(
+        &mut self,
+        hub: &Hub,
+        cfg: &PipelineConfig,
+        source: &str,
+        frame: &LastFrame,
+        resample_tail: Duration,
+        counts: &[usize],
+        extractions: Vec<crate::lights::Extraction>,
+    ) {
+        let m = &hub.metrics;
+        let t = Instant::now();
+        let sh9 = if cfg.sh9 { self.extractor.sh9() } else { None };
+        m.stage_sh.record(t.elapsed());
         for (&n, ex) in counts.iter().zip(extractions) {
             m.stage_assign.record_secs(ex.timings.assign_s);
             let t = Instant::now();
-            let filter = filters
+            let filter = self
+                .filters
                 .entry(n)
                 .or_insert_with(|| TemporalFilter::new(&cfg.filter));
             let lights = filter.filter(&ex.lights);
             m.stage_filter.record(t.elapsed());
 
             let t = Instant::now();
-            let seq = seqs.entry(n).or_insert(0);
+            let seq = self.seqs.entry(n).or_insert(0);
             *seq += 1;
-            let mut set = LightSet::new(lights, &map, cfg.method, domain, source, n, ex.side);
+            let mut set = LightSet::new(
+                lights,
+                &frame.map,
+                cfg.method,
+                frame.domain,
+                source,
+                n,
+                ex.side,
+            );
             set.seq = *seq;
-            set.frame = index;
-            set.t_capture_ns = t_capture_ns;
+            set.frame = frame.index;
+            set.t_capture_ns = frame.t_capture_ns;
             set.sh9 = sh9.clone();
-            set.filter = Some(filter_info.clone());
+            set.filter = Some(self.filter_info.clone());
             // From the frame's last rows in to this document; resampling done while the frame
             // arrived is not in it.
             set.diagnostics.timings_ms = Timings {
@@ -508,7 +593,7 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
                 resample: resample_tail.as_secs_f64() * 1e3,
                 warp: ex.timings.warp_s * 1e3,
                 assign: ex.timings.assign_s * 1e3,
-                total: captured_at.elapsed().as_secs_f64() * 1e3,
+                total: frame.captured_at.elapsed().as_secs_f64() * 1e3,
             };
             set.t_emit_ns = now_ns();
             match serde_json::to_string(&set) {
@@ -516,9 +601,9 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
                     n,
                     Arc::new(Published {
                         seq: *seq,
-                        frame: index,
-                        t_capture_ns,
-                        captured_at,
+                        frame: frame.index,
+                        t_capture_ns: frame.t_capture_ns,
+                        captured_at: frame.captured_at,
                         json: json.into(),
                     }),
                 ),
@@ -527,9 +612,5 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             Metrics::inc(&m.lightsets_published);
             m.stage_publish.record(t.elapsed());
         }
-        Metrics::inc(&m.frames_processed);
-        let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
-        s.spare.push(map);
-        s.spare_images.extend(previous_image);
     }
 }
