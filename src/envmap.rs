@@ -218,7 +218,9 @@ pub struct InputRepairs {
     pub non_finite_pixels: u64,
     /// Pixels with a negative channel (clamped to 0).
     pub negative_pixels: u64,
-    /// Pixels changed for either reason (a pixel can have both).
+    /// Pixels with a channel above [`MAX_RADIANCE`] (clamped to it).
+    pub overbright_pixels: u64,
+    /// Pixels changed for any of these reasons (a pixel can have several).
     pub changed_pixels: u64,
 }
 
@@ -231,6 +233,7 @@ impl InputRepairs {
     pub fn add(&mut self, other: InputRepairs) {
         self.non_finite_pixels += other.non_finite_pixels;
         self.negative_pixels += other.negative_pixels;
+        self.overbright_pixels += other.overbright_pixels;
         self.changed_pixels += other.changed_pixels;
     }
 }
@@ -453,7 +456,13 @@ pub fn luminance64(rgb: [f64; 3]) -> f64 {
     0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]
 }
 
-/// Clamps NaN/inf and negative channels to 0 and counts the pixels touched.
+/// The largest radiance kept. No capture comes near it (the sun's disc is about 1.6e9 cd/m²),
+/// and sums of its squares over a whole map stay finite in f32; finite values above it (3e38
+/// in a corrupt frame) would overflow the sums into infinities and `null`s in the LightSet.
+pub const MAX_RADIANCE: f32 = 1e15;
+
+/// Clamps NaN/inf and negative channels to 0 and channels above [`MAX_RADIANCE`] to it, and
+/// counts the pixels touched.
 ///
 /// Runs of pixels are first tested as a whole with a comparison that vectorises (NaN fails it),
 /// and only a run that fails is repaired pixel by pixel: a clean 1024×512 map took 0.15–0.25 ms
@@ -464,7 +473,7 @@ pub fn sanitize(pixels: &mut [[f32; 3]]) -> InputRepairs {
         let clean = run
             .as_flattened()
             .iter()
-            .fold(true, |ok, c| ok & (0.0..=f32::MAX).contains(c));
+            .fold(true, |ok, c| ok & (0.0..=MAX_RADIANCE).contains(c));
         if !clean {
             r.add(sanitize_each(run));
         }
@@ -476,7 +485,7 @@ pub fn sanitize(pixels: &mut [[f32; 3]]) -> InputRepairs {
 fn sanitize_each(pixels: &mut [[f32; 3]]) -> InputRepairs {
     let mut r = InputRepairs::default();
     for p in pixels.iter_mut() {
-        let bad = p.iter().any(|c| !c.is_finite() || *c < 0.0);
+        let bad = p.iter().any(|c| !(0.0..=MAX_RADIANCE).contains(c));
         r.changed_pixels += bad as u64;
         if p.iter().any(|c| !c.is_finite()) {
             r.non_finite_pixels += 1;
@@ -490,6 +499,12 @@ fn sanitize_each(pixels: &mut [[f32; 3]]) -> InputRepairs {
             r.negative_pixels += 1;
             for c in p.iter_mut() {
                 *c = c.max(0.0);
+            }
+        }
+        if p.iter().any(|&c| c > MAX_RADIANCE) {
+            r.overbright_pixels += 1;
+            for c in p.iter_mut() {
+                *c = c.min(MAX_RADIANCE);
             }
         }
     }
@@ -895,6 +910,9 @@ mod tests {
             -1e-30,
             -0.0,
             f32::MAX,
+            3e38,
+            MAX_RADIANCE,
+            2e15,
             f32::MIN_POSITIVE,
             1e-45,
         ];
@@ -924,14 +942,23 @@ mod tests {
             [f32::NAN, 1.0, 1.0],
             [-1.0, 1.0, 1.0],
             [f32::INFINITY, -2.0, 0.0],
+            [3e38, 1.0, -1.0],
+            [MAX_RADIANCE, 1.0, 1.0],
         ];
         let r = sanitize(&mut px);
         assert_eq!(r.non_finite_pixels, 2);
-        assert_eq!(r.negative_pixels, 2);
-        // [inf, −2, 0] is both: three pixels changed.
-        assert_eq!(r.clamped_pixels(), 3);
-        assert!(px.iter().flatten().all(|c| c.is_finite() && *c >= 0.0));
+        assert_eq!(r.negative_pixels, 3);
+        assert_eq!(r.overbright_pixels, 1);
+        // [inf, −2, 0] and [3e38, 1, −1] are both: four pixels changed.
+        assert_eq!(r.clamped_pixels(), 4);
+        assert!(
+            px.iter()
+                .flatten()
+                .all(|c| (0.0..=MAX_RADIANCE).contains(c))
+        );
         assert_eq!(px[0], [1.0, 2.0, 3.0]);
+        assert_eq!(px[4], [MAX_RADIANCE, 1.0, 0.0]);
+        assert_eq!(px[5], [MAX_RADIANCE, 1.0, 1.0], "the bound itself is kept");
     }
 
     #[test]

@@ -79,6 +79,7 @@ impl LightSet {
                 clamped_pixels: map.repairs.clamped_pixels(),
                 non_finite_pixels: map.repairs.non_finite_pixels,
                 negative_pixels: map.repairs.negative_pixels,
+                overbright_pixels: map.repairs.overbright_pixels,
                 projection: map.projection.name().into(),
                 lights_requested,
                 domain_side,
@@ -92,10 +93,13 @@ impl LightSet {
 /// How the set was made and what went wrong on the way.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Diagnostics {
-    /// Pixels clamped to 0 (non-finite or negative).
+    /// Pixels clamped (non-finite or negative to 0, above `envmap::MAX_RADIANCE` to it).
     pub clamped_pixels: u64,
     pub non_finite_pixels: u64,
     pub negative_pixels: u64,
+    /// Pixels with a channel above `envmap::MAX_RADIANCE`, clamped to it.
+    #[serde(default)]
+    pub overbright_pixels: u64,
     /// Input projection.
     pub projection: String,
     /// Light count asked for (the cap, with `max_error`).

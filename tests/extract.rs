@@ -420,6 +420,32 @@ fn bad_pixels_are_clamped_and_counted() {
     let set = lightset_for_map(&mut Extractor::new(), &map, &LightRequest::default(), "bad");
     assert_eq!(set.diagnostics.clamped_pixels, 3);
     assert!(set.total_irradiance.iter().all(|c| c.is_finite()));
+
+    // A frame of huge finite values (a corrupt camera frame): before the clamp its sums
+    // overflowed to infinity and the document carried nulls. For every method, every light
+    // and the totals are finite, and the document is valid.
+    let px = vec![[3e38f32, 3e38, 3e38]; w * h];
+    let map = EnvMap::from_pixels(w, h, px, Projection::LatLong).unwrap();
+    assert_eq!(map.repairs.overbright_pixels, (w * h) as u64);
+    let validator = lightset_validator();
+    for method in METHODS {
+        let req = LightRequest {
+            method,
+            ..LightRequest::default()
+        };
+        let set = lightset_for_map(&mut Extractor::new(), &map, &req, "overbright");
+        assert_eq!(set.diagnostics.overbright_pixels, (w * h) as u64);
+        let doc = serde_json::to_value(&set).unwrap();
+        assert_valid(&validator, &doc);
+        let e = set.total_irradiance[1];
+        assert!(e.is_finite() && e > 0.0, "{method:?}: total irradiance {e}");
+        for l in &set.lights {
+            assert!(
+                l.irradiance.iter().all(|c| c.is_finite()),
+                "{method:?}: {l:?}"
+            );
+        }
+    }
 }
 
 /// Several light counts from one pass give exactly what separate extractions give.
