@@ -4,7 +4,7 @@
 use super::{FrameSource, SourceError, pace};
 use crate::envmap::{EnvMap, Projection};
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// One file, decoded once and re-emitted at `fps`.
 pub struct FileSource {
@@ -58,6 +58,8 @@ pub struct DirectorySource {
     max_pixels: u64,
     fps: f64,
     next: Instant,
+    /// How long to wait before looking again at a looping directory found empty or unreadable.
+    pub retry: Duration,
 }
 
 impl DirectorySource {
@@ -81,6 +83,7 @@ impl DirectorySource {
             max_pixels,
             fps,
             next: Instant::now(),
+            retry: Duration::from_secs(1),
         })
     }
 }
@@ -106,14 +109,26 @@ impl FrameSource for DirectorySource {
             if !self.looping {
                 return Ok(false);
             }
-            self.files = list_frames(&self.dir).map_err(|e| SourceError::Fatal(e.to_string()))?;
-            if self.files.is_empty() {
-                return Err(SourceError::Fatal(format!(
-                    "{}: no frames left",
-                    self.dir.display()
-                )));
+            // A looping directory that is empty or unreadable for a while (frames being rotated,
+            // a share remounted) is retried, not given up on.
+            match list_frames(&self.dir) {
+                Ok(files) if !files.is_empty() => {
+                    self.files = files;
+                    self.position = 0;
+                }
+                listed => {
+                    std::thread::sleep(self.retry);
+                    self.next = Instant::now();
+                    let why = match listed {
+                        Ok(_) => format!("{}: no .exr or .hdr frames", self.dir.display()),
+                        Err(e) => e.to_string(),
+                    };
+                    return Err(SourceError::BadFrame(format!(
+                        "{why} (retrying every {:?})",
+                        self.retry
+                    )));
+                }
             }
-            self.position = 0;
         }
         pace(&mut self.next, self.fps);
         let path = &self.files[self.position];
@@ -177,6 +192,29 @@ mod tests {
             })
             .collect();
         assert_eq!(values, vec![1.0, 2.0, 4.0, 1.0, 2.0, 4.0]);
+
+        // Emptied, it is a bad frame (counted, retried), not the end; refilled, it plays on.
+        looping.retry = Duration::from_millis(10);
+        for f in [
+            "frame-001.exr",
+            "frame-002.exr",
+            "frame-003.exr",
+            "frame-004.exr",
+        ] {
+            std::fs::remove_file(dir.join(f)).unwrap();
+        }
+        for _ in 0..3 {
+            match looping.next_frame(&mut out) {
+                Err(SourceError::BadFrame(e)) => assert!(e.contains("retrying"), "{e}"),
+                other => panic!(
+                    "expected a bad frame, got {:?}",
+                    other.map_err(|e| e.to_string())
+                ),
+            }
+        }
+        write(&dir.join("frame-009.exr"), 9.0);
+        assert!(looping.next_frame(&mut out).unwrap());
+        assert_eq!(out.pixels[0][0], 9.0);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
