@@ -97,6 +97,8 @@ struct Server {
 
 /// The test servers' upload idle timeout (the daemon's is 10 s).
 const UPLOAD_IDLE: Duration = Duration::from_secs(2);
+/// The test servers' header read timeout (the daemon's is 10 s).
+const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(1);
 
 async fn start(source: MemorySource, token: Option<&str>, max_body: usize) -> Server {
     start_with_cors(source, token, max_body, CorsOrigins::None).await
@@ -122,6 +124,8 @@ async fn start_with_cors(
         },
     )
     .with_cors(cors);
+    let mut state = state;
+    state.header_read_timeout = HEADER_READ_TIMEOUT;
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap();
     tokio::spawn(async move { run(listener, state, std::future::pending()).await.unwrap() });
@@ -727,6 +731,44 @@ async fn content_length_is_refused_before_reading() {
     assert!(reply.starts_with("HTTP/1.1 413"), "{reply}");
     assert!(reply.contains("application/problem+json"), "{reply}");
     assert!(started.elapsed() < Duration::from_secs(1));
+}
+
+/// Connections that trickle in a request header, or say nothing, are closed after the header
+/// read timeout; the daemon goes on serving.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_that_never_finish_a_header_are_closed() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let s = start_default(10.0).await;
+    let mut half = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    half.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+        .await
+        .unwrap();
+    let mut silent = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    let opened = Instant::now();
+    for tcp in [&mut half, &mut silent] {
+        let mut buf = [0u8; 1024];
+        // Closed (EOF, perhaps after a 408) rather than left open: the read ends.
+        loop {
+            let n = tokio::time::timeout(HEADER_READ_TIMEOUT * 5, tcp.read(&mut buf))
+                .await
+                .expect("the connection was closed in time")
+                .unwrap_or(0);
+            if n == 0 {
+                break;
+            }
+        }
+    }
+    let took = opened.elapsed();
+    assert!(
+        took >= HEADER_READ_TIMEOUT - Duration::from_millis(100),
+        "closed after {took:?}, before the timeout"
+    );
+    let health = get_json(
+        &reqwest::Client::new(),
+        &format!("http://{}/healthz", s.addr),
+    )
+    .await;
+    assert!(health["status"].is_string(), "{health}");
 }
 
 /// The status line of the answer to a raw request on `tcp`, within `limit`.

@@ -42,6 +42,8 @@ pub struct AppState {
     pub ws: Arc<WsConfig>,
     /// Web pages allowed to call the API from their origin (CORS); none by default.
     pub cors: CorsOrigins,
+    /// See [`HEADER_READ_TIMEOUT`], the default.
+    pub header_read_timeout: Duration,
     started: Instant,
 }
 
@@ -187,6 +189,7 @@ impl AppState {
             uploads: Arc::new(uploads),
             ws: Arc::new(ws),
             cors: CorsOrigins::None,
+            header_read_timeout: HEADER_READ_TIMEOUT,
             started: Instant::now(),
         }
     }
@@ -225,10 +228,18 @@ pub fn app(state: AppState) -> Router {
 /// How long open requests and WebSocket clients get to finish once shutdown has begun.
 pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 
-/// Serves [`app`] on `listener` until `shutdown` resolves, then shuts the hub down (streams get
-/// a close frame, the pipeline stops) and returns once open requests have finished and every
-/// WebSocket client has gone, or after [`SHUTDOWN_GRACE`]: a client that stalls mid-upload does
-/// not hold the daemon up. Every connection gets TCP_NODELAY: a LightSet is written as a few
+/// A connection must send a request's whole header within this time (and an idle kept-alive
+/// connection is closed after it), so that connections that trickle in headers or say nothing
+/// cannot pile up ([`AppState::header_read_timeout`]).
+pub const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Serves [`app`] on `listener` over HTTP/1.1 (with WebSocket upgrades) until `shutdown`
+/// resolves, then shuts the hub down (streams get a close frame, the pipeline stops) and returns
+/// once open requests have finished and every WebSocket client has gone, or after
+/// [`SHUTDOWN_GRACE`]: a client that stalls mid-upload does not hold the daemon up.
+///
+/// The accept loop is hyper's own rather than `axum::serve`, which sets no timer and so no
+/// [`HEADER_READ_TIMEOUT`]. Every connection gets TCP_NODELAY: a LightSet is written as a few
 /// small frames, and Nagle's algorithm would hold them back for the peer's delayed ACK
 /// (measured: p99 delivery 9 ms on loopback without it).
 pub async fn run(
@@ -236,37 +247,64 @@ pub async fn run(
     state: AppState,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    use axum::serve::ListenerExt;
-    use std::future::IntoFuture;
-    let listener = listener.tap_io(|tcp| {
+    use hyper_util::rt::{TokioIo, TokioTimer};
+    let hub = state.hub.clone();
+    let header_read_timeout = state.header_read_timeout;
+    let service = hyper_util::service::TowerToHyperService::new(app(state));
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let mut connections = tokio::task::JoinSet::new();
+    tokio::pin!(shutdown);
+    loop {
+        let (tcp, _) = tokio::select! {
+            accepted = listener.accept() => match accepted {
+                Ok(a) => a,
+                Err(e) => {
+                    // Out of file descriptors, say: let open connections finish some.
+                    tracing::warn!("cannot accept a connection: {e}");
+                    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                    continue;
+                }
+            },
+            Some(_) = connections.join_next(), if !connections.is_empty() => continue,
+            () = &mut shutdown => break,
+        };
         if let Err(e) = tcp.set_nodelay(true) {
             tracing::debug!("cannot set TCP_NODELAY: {e}");
         }
-    });
-    let hub = state.hub.clone();
-    let (begun_tx, begun_rx) = tokio::sync::oneshot::channel::<()>();
-    let signal = async move {
-        shutdown.await;
-        let _ = begun_tx.send(());
-    };
-    let server = axum::serve(listener, app(state))
-        .with_graceful_shutdown(signal)
-        .into_future();
-    tokio::pin!(server);
-    tokio::select! {
-        served = &mut server => return served,
-        _ = begun_rx => {}
+        let service = service.clone();
+        let mut stop = stop_rx.clone();
+        connections.spawn(async move {
+            let conn = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(header_read_timeout)
+                .serve_connection(TokioIo::new(tcp), service)
+                .with_upgrades();
+            tokio::pin!(conn);
+            tokio::select! {
+                _ = conn.as_mut() => return,
+                _ = stop.wait_for(|s| *s) => {}
+            }
+            // Finish the request in hand, then close.
+            conn.as_mut().graceful_shutdown();
+            let _ = conn.await;
+        });
     }
+    drop(listener);
     hub.shutdown();
+    let _ = stop_tx.send(true);
     let deadline = tokio::time::Instant::now() + SHUTDOWN_GRACE;
-    if tokio::time::timeout_at(deadline, &mut server)
-        .await
-        .is_err()
-    {
-        tracing::warn!("requests still open {SHUTDOWN_GRACE:?} after shutdown began: closing them");
+    let finished = tokio::time::timeout_at(deadline, async {
+        while connections.join_next().await.is_some() {}
+    });
+    if finished.await.is_err() {
+        tracing::warn!(
+            "{} connections still open {SHUTDOWN_GRACE:?} after shutdown began: closing them",
+            connections.len()
+        );
+        connections.abort_all();
     }
-    // Upgraded connections are not the server's to wait for: wait for the clients' loops, which
-    // send their close frame and end.
+    // Upgraded connections are no longer hyper's: wait for the clients' loops, which send their
+    // close frame and end.
     while hub
         .metrics
         .ws_clients
