@@ -242,8 +242,10 @@ impl Metrics {
         let _ = writeln!(s, "vemlight_ws_clients {}", self.ws_clients.load(Relaxed));
         let _ = writeln!(
             s,
-            "# HELP vemlight_stage_seconds Time spent per pipeline stage (capture includes resampling \
-             rows while the frame arrives; resample is what is left once it is in)."
+            "# HELP vemlight_stage_seconds Time spent per pipeline stage (capture is the whole wait for \
+             each frame: until it is due or arrives, reading or decoding it, and resampling its rows \
+             as they arrive, so at a source's full rate it is about one frame period; resample is \
+             what is left once the frame is in)."
         );
         let _ = writeln!(s, "# TYPE vemlight_stage_seconds summary");
         for (stage, t) in [

@@ -731,6 +731,25 @@ async fn content_length_is_refused_before_reading() {
     assert!(reply.starts_with("HTTP/1.1 413"), "{reply}");
     assert!(reply.contains("application/problem+json"), "{reply}");
     assert!(started.elapsed() < Duration::from_secs(1));
+
+    // A client that waits for `100 Continue` before sending is told 413 instead, not asked for
+    // the body first (and the same for bad parameters).
+    for query in ["", "?lights=0"] {
+        let mut tcp = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        let head = format!(
+            "POST /v1/lights{query} HTTP/1.1\r\nHost: x\r\nContent-Type: image/x-exr\r\n\
+             Expect: 100-continue\r\nContent-Length: {}\r\n\r\n",
+            if query.is_empty() { 5_000_000 } else { 1000 }
+        );
+        tcp.write_all(head.as_bytes()).await.unwrap();
+        let line = status_line(&mut tcp, Duration::from_secs(1)).await;
+        let want = if query.is_empty() {
+            "HTTP/1.1 413"
+        } else {
+            "HTTP/1.1 400"
+        };
+        assert!(line.starts_with(want), "{query}: {line}");
+    }
 }
 
 /// Connections that trickle in a request header, or say nothing, are closed after the header
