@@ -393,6 +393,12 @@ async fn bad_stream_parameters_are_refused() {
             Ok(_) => panic!("{query} was accepted"),
         }
     }
+    // Without a handshake: a problem document too.
+    let plain = reqwest::get(format!("http://{}/v1/stream", s.addr))
+        .await
+        .unwrap();
+    let p = problem(plain, 400).await;
+    assert!(p["detail"].as_str().unwrap().contains("WebSocket"), "{p}");
     let mut ws = connect(s.addr, "?lights=8&max_hz=0.001", None).await;
     next_set(&mut ws, Duration::from_secs(5)).await;
     let text = metrics_text(&reqwest::Client::new(), &format!("http://{}", s.addr)).await;

@@ -29,6 +29,10 @@ pub enum ApiError {
     /// 503: nothing to serve yet, or the daemon is busy.
     #[error("{0}")]
     Unavailable(String),
+    /// 400, 405 or 426 (as axum's handshake check says): `/v1/stream` asked for without a
+    /// WebSocket handshake.
+    #[error("{1}")]
+    NotWebSocket(StatusCode, String),
     /// 500: a bug; details are logged, not sent.
     #[error("internal error: {0}")]
     Internal(String),
@@ -56,6 +60,7 @@ impl ApiError {
             ApiError::Unprocessable(_) => StatusCode::UNPROCESSABLE_ENTITY,
             ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             ApiError::Timeout(_) => StatusCode::REQUEST_TIMEOUT,
+            ApiError::NotWebSocket(status, _) => *status,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
         }
     }

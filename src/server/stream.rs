@@ -7,6 +7,7 @@
 use super::{ApiError, AppState, parse_param};
 use crate::capture::pipeline::Subscription;
 use crate::metrics::Metrics;
+use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade, close_code};
 use axum::extract::{Query, State};
 use axum::response::Response;
@@ -36,10 +37,20 @@ const CLIENT_READ_BUFFER: usize = 4 * 1024;
 
 /// Upgrade handler: checks the query, subscribes, hands off.
 pub async fn stream(
-    ws: WebSocketUpgrade,
+    ws: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
     Query(q): Query<HashMap<String, String>>,
     State(state): State<AppState>,
 ) -> Result<Response, ApiError> {
+    // A plain GET gets a problem document like every other error, not axum's text.
+    let ws = ws.map_err(|e| {
+        ApiError::NotWebSocket(
+            e.status(),
+            format!(
+                "{}: /v1/stream is a WebSocket endpoint (subprotocol {SUBPROTOCOL})",
+                e.body_text()
+            ),
+        )
+    })?;
     let lights = parse_param::<usize>(&q, "lights")?.unwrap_or(state.hub.default_lights());
     let max_hz = parse_param::<f64>(&q, "max_hz")?;
     if let Some(hz) = max_hz
