@@ -74,7 +74,9 @@ struct ServeArgs {
     /// at --fps) or a directory of frames (played in name order at --fps).
     #[arg(long, default_value = "synthetic")]
     source: String,
-    /// Frame rate of the synthetic, file and directory sources.
+    /// Frame rate of the synthetic, file and directory sources; for stdin, the rate the producer
+    /// is expected to write at (frames are read as they come; it states the filter's delay and
+    /// cut-off in time and when a silent producer counts as stalled).
     #[arg(long, default_value_t = 30.0)]
     fps: f64,
     /// Loop a directory source.
@@ -131,11 +133,11 @@ struct ServeArgs {
     /// Synthetic sky size, WxH (lat-long, 2:1).
     #[arg(long, default_value = "1024x512", value_parser = parse_size)]
     sky_size: (usize, usize),
-    /// Synthetic sun speed along its day path, degrees per second.
-    #[arg(long, default_value_t = 1.0)]
+    /// Synthetic sun speed along its day path, degrees per second (negative: backwards).
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     sun_speed: f64,
     /// Synthetic cloud cover, 0–1.
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
     clouds: f64,
     /// Period of the synthetic lamp that switches on and off, seconds (0: no lamp).
     #[arg(long, default_value_t = 10.0)]
@@ -421,12 +423,24 @@ fn make_source(
                     args.max_pixels
                 );
             }
+            for (name, v) in [
+                ("--sun-speed", args.sun_speed),
+                ("--clouds", args.clouds),
+                ("--switch-period", args.switch_period),
+            ] {
+                if !v.is_finite() {
+                    bail!("{name} must be a finite number, got {v}");
+                }
+            }
+            if !(0.0..=1.0).contains(&args.clouds) {
+                bail!("--clouds must be between 0 and 1, got {}", args.clouds);
+            }
             let defaults = SyntheticConfig::default();
             let cfg = SyntheticConfig {
                 width,
                 height,
                 sun_speed_deg_per_s: args.sun_speed,
-                clouds: args.clouds.clamp(0.0, 1.0),
+                clouds: args.clouds,
                 switch_light: (args.switch_period > 0.0).then(|| SwitchLight {
                     period_s: args.switch_period,
                     ..SwitchLight::default()
@@ -439,15 +453,17 @@ fn make_source(
             let (Some(w), Some(h)) = (args.width, args.height) else {
                 bail!("--source stdin needs --width and --height");
             };
+            if (w as u64).saturating_mul(h as u64) > args.max_pixels {
+                bail!(
+                    "--width × --height ({w}×{h}) is over --max-pixels ({})",
+                    args.max_pixels
+                );
+            }
             let projection = projection.unwrap_or_else(|| Projection::guess(w, h));
-            Box::new(RawSource::new(
-                std::io::stdin(),
-                w,
-                h,
-                args.pixel,
-                projection,
-                "stdin",
-            )?)
+            Box::new(
+                RawSource::new(std::io::stdin(), w, h, args.pixel, projection, "stdin")?
+                    .with_declared_fps(args.fps),
+            )
         }
         path => {
             let path = std::path::Path::new(path);

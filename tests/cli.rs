@@ -383,6 +383,28 @@ fn serve_configuration_errors_exit_with_a_message() {
         ),
         (vec!["serve", "--token", ""], "set but empty"),
         (
+            vec!["serve", "--clouds", "-5"],
+            "--clouds must be between 0 and 1",
+        ),
+        (
+            vec!["serve", "--sun-speed", "nan"],
+            "must be a finite number",
+        ),
+        (
+            vec![
+                "serve",
+                "--source",
+                "stdin",
+                "--width",
+                "16384",
+                "--height",
+                "8192",
+                "--max-pixels",
+                "1000",
+            ],
+            "is over --max-pixels",
+        ),
+        (
             vec!["serve", "--lights", "0"],
             "--lights must be between 1 and 1024",
         ),

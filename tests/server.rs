@@ -794,6 +794,23 @@ async fn connections_that_never_finish_a_header_are_closed() {
     )
     .await;
     assert!(health["status"].is_string(), "{health}");
+    // A client that sends its request and shuts its side at once still gets the answer, also
+    // one that takes a while (a light count not computed yet).
+    for path in [
+        "/healthz",
+        "/v1/lights/latest?lights=7",
+        "/v1/lights/latest?lights=9",
+    ] {
+        let mut tcp = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        let req = format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+        tcp.write_all(req.as_bytes()).await.unwrap();
+        tcp.shutdown().await.unwrap();
+        let line = status_line(&mut tcp, Duration::from_secs(3)).await;
+        assert!(
+            line.starts_with("HTTP/1.1 200"),
+            "{path}, half-closed: '{line}'"
+        );
+    }
 }
 
 /// The status line of the answer to a raw request on `tcp`, within `limit`.
@@ -1126,7 +1143,7 @@ async fn serve_reads_raw_frames_from_stdin() {
     let (w, h) = (512usize, 256usize);
     let (mut child, addr) = spawn_serve(&[
         "--source", "stdin", "--width", "512", "--height", "256", "--pixel", "rgbf32le",
-        "--filter", "none",
+        "--filter", "sinc", "--fps", "60",
     ]);
     // Three frames: a bright patch in the upper half (sky), constant 0.1 elsewhere.
     let mut stdin = child.stdin.take().unwrap();
@@ -1157,6 +1174,12 @@ async fn serve_reads_raw_frames_from_stdin() {
     let doc = get_json(&c, &format!("http://{addr}/v1/lights/latest")).await;
     assert_valid(&lightset_validator(), &doc);
     assert_eq!(doc["diagnostics"]["projection"], "latlong");
+    // The filter is stated at the producer's declared rate: 3 Hz, 4 frames of 1/60 s.
+    assert_eq!(doc["filter"]["cutoff_hz"], 3.0, "{}", doc["filter"]);
+    let delay = doc["filter"]["delay_frames"].as_f64().unwrap();
+    let delay_ms = doc["filter"]["delay_ms"].as_f64().unwrap();
+    assert!(delay > 0.0 && (delay_ms - delay / 60.0 * 1e3).abs() < 1e-9);
+    assert_eq!(health["source"]["stall_after_s"], 2.0);
     // The patch is at u ≈ 0.66, v ≈ 0.19: above the horizon, toward +X/−Z.
     let p = &doc["primary"]["to_light"];
     assert!(
@@ -1166,6 +1189,32 @@ async fn serve_reads_raw_frames_from_stdin() {
     let _ = std::process::Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
         .status();
+    let _ = child.wait();
+}
+
+/// A camera pipe that closes before its first whole frame: /healthz says the daemon has failed
+/// (503), not that it is still starting.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_source_that_ends_before_its_first_frame_is_reported_failed() {
+    use std::io::Write;
+    let (mut child, addr) = spawn_serve(&["--source", "stdin", "--width", "64", "--height", "32"]);
+    let mut stdin = child.stdin.take().unwrap();
+    stdin.write_all(&[0u8; 1000]).unwrap(); // less than a frame
+    drop(stdin);
+    let c = reqwest::Client::new();
+    let health = poll_health(&c, &format!("http://{addr}"), Duration::from_secs(5), |h| {
+        h["status"] == "failed"
+    })
+    .await;
+    assert_eq!(health["status"], "failed", "{health}");
+    assert_eq!(health["source"]["state"], "failed");
+    let r = c
+        .get(format!("http://{addr}/healthz"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 503);
+    let _ = child.kill();
     let _ = child.wait();
 }
 

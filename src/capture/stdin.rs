@@ -50,6 +50,8 @@ pub struct RawSource<R: Read + Send> {
     buf: Vec<u8>,
     rows_per_batch: usize,
     name: String,
+    /// The producer's declared frame rate (0: unknown), see [`RawSource::with_declared_fps`].
+    declared_fps: f64,
 }
 
 /// About how many bytes are read and converted before the rows are handed on: small enough that
@@ -67,12 +69,12 @@ impl<R: Read + Send> RawSource<R> {
         name: &str,
     ) -> anyhow::Result<Self> {
         projection.check_size(width, height)?;
-        let row_bytes = width * pixel.bytes_per_pixel();
         width
             .checked_mul(height)
             .and_then(|n| n.checked_mul(pixel.bytes_per_pixel()))
             .filter(|&b| b <= 1 << 31)
             .ok_or_else(|| anyhow::anyhow!("raw frames of {width}×{height} are too large"))?;
+        let row_bytes = width * pixel.bytes_per_pixel();
         let rows_per_batch = (BATCH_BYTES / row_bytes).clamp(1, height);
         Ok(RawSource {
             reader,
@@ -83,7 +85,16 @@ impl<R: Read + Send> RawSource<R> {
             buf: vec![0; rows_per_batch * row_bytes],
             rows_per_batch,
             name: name.to_owned(),
+            declared_fps: 0.0,
         })
+    }
+
+    /// The rate the producer is expected to write frames at. Frames are still read as they come;
+    /// the rate states the temporal filter's delay and cut-off in time and sets when a silent
+    /// producer counts as stalled (ten frame periods, at least 2 s; 5 s when unknown).
+    pub fn with_declared_fps(mut self, fps: f64) -> Self {
+        self.declared_fps = fps;
+        self
     }
 
     /// Fills `buf` from the reader; `Ok(false)` on a clean end of stream before its first byte
@@ -186,7 +197,7 @@ impl<R: Read + Send> FrameSource for RawSource<R> {
     }
 
     fn nominal_fps(&self) -> f64 {
-        0.0
+        self.declared_fps
     }
 }
 

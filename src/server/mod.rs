@@ -277,6 +277,9 @@ pub async fn run(
             let conn = hyper::server::conn::http1::Builder::new()
                 .timer(TokioTimer::new())
                 .header_read_timeout(header_read_timeout)
+                // A client that sends its request and then shuts its side (`nc -N`) still gets
+                // the answer.
+                .half_close(true)
                 .serve_connection(TokioIo::new(tcp), service)
                 .with_upgrades();
             tokio::pin!(conn);
@@ -393,11 +396,14 @@ async fn viewer() -> Response {
 }
 
 /// `GET /healthz`: 200 while the daemon can serve a light set (status "degraded" when the source
-/// has failed, ended or stalled and the last good set is being served), 503 before the first one.
+/// has failed, ended or stalled and the last good set is being served), 503 before the first one
+/// ("starting", or "failed" when the source ended or failed before giving one).
 async fn healthz(State(state): State<AppState>) -> Response {
     let source = state.hub.health();
     let latest = state.hub.latest();
     let status = match (latest.is_some(), source.delivering()) {
+        // The source ended or failed before its first good frame: nothing will come.
+        (false, _) if matches!(source.state, "ended" | "failed") => "failed",
         (false, _) => "starting",
         (true, true) => "ok",
         (true, false) => "degraded",
