@@ -98,16 +98,16 @@ impl<R: Read + Send> RawSource<R> {
     }
 
     /// Fills `buf` from the reader; `Ok(false)` on a clean end of stream before its first byte
-    /// when `may_end`.
-    fn fill(reader: &mut R, buf: &mut [u8], may_end: bool) -> Result<bool, String> {
+    /// when `may_end`. An error says why and how many bytes of `buf` had come.
+    fn fill(reader: &mut R, buf: &mut [u8], may_end: bool) -> Result<bool, (String, usize)> {
         let mut filled = 0;
         while filled < buf.len() {
             match reader.read(&mut buf[filled..]) {
                 Ok(0) if filled == 0 && may_end => return Ok(false),
-                Ok(0) => return Err("stream ended inside a frame".into()),
+                Ok(0) => return Err(("stream ended inside a frame".into(), filled)),
                 Ok(n) => filled += n,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(e.to_string()),
+                Err(e) => return Err((e.to_string(), filled)),
             }
         }
         Ok(true)
@@ -175,8 +175,12 @@ impl<R: Read + Send> FrameSource for RawSource<R> {
             match Self::fill(&mut self.reader, bytes, row == 0) {
                 Ok(true) => {}
                 Ok(false) => return Ok(false),
-                Err(e) => {
-                    let at = format!("after {row} of {} rows", self.height);
+                Err((e, filled)) => {
+                    let at = format!(
+                        "after {} of the frame's {} bytes",
+                        row * row_bytes + filled,
+                        self.height * row_bytes
+                    );
                     return Err(SourceError::Fatal(format!("{e} ({at})")));
                 }
             }
@@ -328,10 +332,12 @@ mod tests {
             "t",
         )
         .unwrap();
-        assert!(matches!(
-            src.next_frame(&mut out),
-            Err(SourceError::Fatal(_))
-        ));
+        match src.next_frame(&mut out) {
+            Err(SourceError::Fatal(e)) => {
+                assert!(e.contains("after 20 of the frame's 24 bytes"), "{e}")
+            }
+            other => panic!("{:?}", other.map_err(|e| e.to_string())),
+        }
         assert!(
             RawSource::new(&b""[..], 3, 1, RawPixel::Rgb48le, Projection::LatLong, "t").is_err()
         );
