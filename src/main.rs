@@ -29,9 +29,9 @@ enum Command {
     Serve(Box<ServeArgs>),
     /// Exits 0 when a daemon answers `GET /healthz` with 200 (for container health checks).
     Healthcheck {
-        /// host:port of the daemon.
-        #[arg(default_value = "127.0.0.1:7878")]
-        addr: String,
+        /// host:port of the daemon (default: VEMLIGHT_BIND, as `serve` reads it, with an
+        /// any-interface address asked on loopback; else 127.0.0.1:7878).
+        addr: Option<String>,
     },
     /// Per-frame extraction speed of every method (single thread, decoding excluded), as medians
     /// and ratios to median cut measured in the same run.
@@ -68,7 +68,7 @@ struct EvalArgs {
 #[derive(clap::Args)]
 struct ServeArgs {
     /// Address to listen on.
-    #[arg(long, default_value = "127.0.0.1:7878")]
+    #[arg(long, env = "VEMLIGHT_BIND", default_value = "127.0.0.1:7878")]
     bind: String,
     /// `synthetic` (a built-in dynamic sky), `stdin` (raw frames), an .exr/.hdr file (re-emitted
     /// at --fps) or a directory of frames (played in name order at --fps).
@@ -242,7 +242,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => run_bench(args),
         Command::Eval(args) => run_eval(args),
         Command::Serve(args) => run_serve(*args),
-        Command::Healthcheck { addr } => healthcheck(&addr),
+        Command::Healthcheck { addr } => healthcheck(addr),
         #[cfg(feature = "render")]
         Command::View(args) => vemlight::render::view::run(args),
     };
@@ -493,15 +493,30 @@ fn make_source(
 }
 
 /// `vemlight healthcheck`: a plain HTTP/1.0 GET of /healthz.
-fn healthcheck(addr: &str) -> anyhow::Result<()> {
+fn healthcheck(addr: Option<String>) -> anyhow::Result<()> {
     use std::io::Read;
-    use std::net::TcpStream;
+    use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
     let timeout = std::time::Duration::from_secs(3);
-    let sock: std::net::SocketAddr = addr
-        .parse()
-        .with_context(|| format!("'{addr}' is not host:port"))?;
+    let addr = addr.unwrap_or_else(|| {
+        std::env::var("VEMLIGHT_BIND").unwrap_or_else(|_| "127.0.0.1:7878".into())
+    });
+    let sock: SocketAddr = addr
+        .to_socket_addrs()
+        .with_context(|| format!("'{addr}' is not host:port"))?
+        .next()
+        .with_context(|| format!("'{addr}' names no address"))?;
+    // A daemon listening on every interface is asked on loopback.
+    let sock = match sock {
+        SocketAddr::V4(a) if a.ip().is_unspecified() => {
+            SocketAddr::from((std::net::Ipv4Addr::LOCALHOST, a.port()))
+        }
+        SocketAddr::V6(a) if a.ip().is_unspecified() => {
+            SocketAddr::from((std::net::Ipv6Addr::LOCALHOST, a.port()))
+        }
+        other => other,
+    };
     let mut s = TcpStream::connect_timeout(&sock, timeout)
-        .with_context(|| format!("cannot connect to {addr}"))?;
+        .with_context(|| format!("cannot connect to {sock}"))?;
     s.set_read_timeout(Some(timeout))?;
     write!(s, "GET /healthz HTTP/1.0\r\nHost: {addr}\r\n\r\n")?;
     let mut reply = String::new();

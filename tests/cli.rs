@@ -422,6 +422,13 @@ fn serve_configuration_errors_exit_with_a_message() {
         let out = vemlight(&args);
         assert_fails_with(&out, needle);
     }
+    // The address can come from the environment (the container image sets it).
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(["serve", "--sky-size", "64x32"])
+        .env("VEMLIGHT_BIND", "nonsense")
+        .output()
+        .unwrap();
+    assert_fails_with(&out, "not an address");
     // An empty token in the environment is a mistake, not a request for an open daemon.
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
         .args(["serve", "--sky-size", "64x32"])

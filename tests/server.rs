@@ -1082,6 +1082,25 @@ async fn serve_binary_streams_the_synthetic_sky_and_stops_on_sigterm() {
     assert_eq!(a["source"], "synthetic:256x128");
     assert_eq!(a["lights"].as_array().unwrap().len(), 16);
     assert!(b["frame"].as_u64() > a["frame"].as_u64());
+    // The container health check: by name, and from VEMLIGHT_BIND as `serve` reads it (an
+    // any-interface address is asked on loopback).
+    let port = addr.port().to_string();
+    for (arg, bind) in [
+        (Some(format!("localhost:{port}")), None),
+        (None, Some(format!("0.0.0.0:{port}"))),
+    ] {
+        let mut check = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"));
+        check.arg("healthcheck").args(arg.as_slice());
+        if let Some(b) = &bind {
+            check.env("VEMLIGHT_BIND", b);
+        }
+        let out = check.output().unwrap();
+        assert!(
+            out.status.success(),
+            "healthcheck {arg:?} / VEMLIGHT_BIND={bind:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
     // More clients, each of which must be told the daemon is going, and an upload that stalls
     // after 10 of its 1000 bytes, which must not hold the daemon up.
     let mut others = Vec::new();
