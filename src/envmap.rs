@@ -320,13 +320,7 @@ impl EnvMap {
             .into_dimensions()
             .map_err(|e| corrupt(name, e))?;
         let (width, height) = (dims.0 as u64, dims.1 as u64);
-        if width * height > max_pixels {
-            return Err(InputError::TooLarge {
-                width,
-                height,
-                limit: max_pixels,
-            });
-        }
+        check_pixel_limit(width, height, max_pixels)?;
         let (w, h) = (width as usize, height as usize);
         let projection = projection.unwrap_or_else(|| Projection::guess(w, h));
         projection.check_size(w, h)?;
@@ -695,14 +689,7 @@ fn check_exr_header(bytes: &[u8], max_pixels: u64) -> Result<exr::meta::MetaData
     for header in &meta.headers {
         let display = header.shared_attributes.display_window.size;
         for size in [header.layer_size, display] {
-            let (width, height) = (size.width() as u64, size.height() as u64);
-            if width.saturating_mul(height) > max_pixels {
-                return Err(InputError::TooLarge {
-                    width,
-                    height,
-                    limit: max_pixels,
-                });
-            }
+            check_pixel_limit(size.width() as u64, size.height() as u64, max_pixels)?;
         }
     }
     if meta.headers.iter().any(|h| is_dwa(h.compression)) {
@@ -799,6 +786,19 @@ fn corrupt(format: &'static str, e: image::ImageError) -> InputError {
             reason: other.to_string(),
         },
     }
+}
+
+/// An image of `width` × `height` pixels is within `max_pixels` (`--max-pixels`), checked before
+/// anything of that size is allocated.
+pub fn check_pixel_limit(width: u64, height: u64, max_pixels: u64) -> Result<(), InputError> {
+    if width.saturating_mul(height) > max_pixels {
+        return Err(InputError::TooLarge {
+            width,
+            height,
+            limit: max_pixels,
+        });
+    }
+    Ok(())
 }
 
 /// Bytes [`sniff`] needs to tell a format.

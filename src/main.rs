@@ -403,6 +403,17 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Frames of `width` × `height` (a source's size, named `what`) are within `--max-pixels`.
+fn within_max_pixels(
+    what: &str,
+    width: usize,
+    height: usize,
+    args: &ServeArgs,
+) -> anyhow::Result<()> {
+    vemlight::envmap::check_pixel_limit(width as u64, height as u64, args.max_pixels)
+        .map_err(|_| anyhow::anyhow!("{what} is over --max-pixels ({})", args.max_pixels))
+}
+
 /// The frame source `--source` names.
 fn make_source(
     args: &ServeArgs,
@@ -417,12 +428,7 @@ fn make_source(
             if width != 2 * height || height < 8 {
                 bail!("--sky-size must be 2:1 and at least 16x8, got {width}x{height}");
             }
-            if (width as u64).saturating_mul(height as u64) > args.max_pixels {
-                bail!(
-                    "--sky-size {width}x{height} is over --max-pixels ({})",
-                    args.max_pixels
-                );
-            }
+            within_max_pixels(&format!("--sky-size {width}x{height}"), width, height, args)?;
             for (name, v) in [
                 ("--sun-speed", args.sun_speed),
                 ("--clouds", args.clouds),
@@ -453,12 +459,7 @@ fn make_source(
             let (Some(w), Some(h)) = (args.width, args.height) else {
                 bail!("--source stdin needs --width and --height");
             };
-            if (w as u64).saturating_mul(h as u64) > args.max_pixels {
-                bail!(
-                    "--width × --height ({w}×{h}) is over --max-pixels ({})",
-                    args.max_pixels
-                );
-            }
+            within_max_pixels(&format!("--width × --height ({w}×{h})"), w, h, args)?;
             let projection = projection.unwrap_or_else(|| Projection::guess(w, h));
             Box::new(
                 RawSource::new(std::io::stdin(), w, h, args.pixel, projection, "stdin")?
