@@ -29,9 +29,10 @@ enum Command {
     Serve(Box<ServeArgs>),
     /// Exits 0 when a daemon answers `GET /healthz` with 200 (for container health checks).
     Healthcheck {
-        /// host:port of the daemon (default: VEMLIGHT_BIND, as `serve` reads it, with an
-        /// any-interface address asked on loopback; else 127.0.0.1:7878).
-        addr: Option<String>,
+        /// host:port of the daemon, read as `serve --bind` reads it (an any-interface address
+        /// is asked on loopback).
+        #[arg(env = "VEMLIGHT_BIND", default_value = DEFAULT_BIND)]
+        addr: String,
     },
     /// Per-frame extraction speed of every method (single thread, decoding excluded), as medians
     /// and ratios to median cut measured in the same run.
@@ -68,7 +69,7 @@ struct EvalArgs {
 #[derive(clap::Args)]
 struct ServeArgs {
     /// Address to listen on.
-    #[arg(long, env = "VEMLIGHT_BIND", default_value = "127.0.0.1:7878")]
+    #[arg(long, env = "VEMLIGHT_BIND", default_value = DEFAULT_BIND)]
     bind: String,
     /// `synthetic` (a built-in dynamic sky), `stdin` (raw frames), an .exr/.hdr file (re-emitted
     /// at --fps) or a directory of frames (played in name order at --fps).
@@ -242,7 +243,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => run_bench(args),
         Command::Eval(args) => run_eval(args),
         Command::Serve(args) => run_serve(*args),
-        Command::Healthcheck { addr } => healthcheck(addr),
+        Command::Healthcheck { addr } => healthcheck(&addr),
         #[cfg(feature = "render")]
         Command::View(args) => vemlight::render::view::run(args),
     };
@@ -299,6 +300,9 @@ fn run_lights(args: LightsArgs) -> anyhow::Result<()> {
 
 /// `vemlight serve`: builds the source, starts the pipeline threads and serves until SIGINT or
 /// SIGTERM.
+/// Where the daemon listens unless `--bind` or `VEMLIGHT_BIND` says otherwise.
+const DEFAULT_BIND: &str = "127.0.0.1:7878";
+
 /// The frame rates `--fps` may name: one frame in 1000 s up to 1000 frames/s.
 const MIN_FPS: f64 = 0.001;
 const MAX_FPS: f64 = 1000.0;
@@ -494,13 +498,10 @@ fn make_source(
 }
 
 /// `vemlight healthcheck`: a plain HTTP/1.0 GET of /healthz.
-fn healthcheck(addr: Option<String>) -> anyhow::Result<()> {
+fn healthcheck(addr: &str) -> anyhow::Result<()> {
     use std::io::Read;
     use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
     let timeout = std::time::Duration::from_secs(3);
-    let addr = addr.unwrap_or_else(|| {
-        std::env::var("VEMLIGHT_BIND").unwrap_or_else(|_| "127.0.0.1:7878".into())
-    });
     let sock: SocketAddr = addr
         .to_socket_addrs()
         .with_context(|| format!("'{addr}' is not host:port"))?
