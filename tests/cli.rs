@@ -422,20 +422,19 @@ fn serve_configuration_errors_exit_with_a_message() {
         let out = vemlight(&args);
         assert_fails_with(&out, needle);
     }
-    // The address can come from the environment (the container image sets it).
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["serve", "--sky-size", "64x32"])
-        .env("VEMLIGHT_BIND", "nonsense")
-        .output()
-        .unwrap();
-    assert_fails_with(&out, "not an address");
-    // An empty token in the environment is a mistake, not a request for an open daemon.
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["serve", "--sky-size", "64x32"])
-        .env("VEMLIGHT_TOKEN", "")
-        .output()
-        .unwrap();
-    assert_fails_with(&out, "set but empty");
+    // From the environment: the address (the container image sets it), and an empty token,
+    // a mistake rather than a request for an open daemon.
+    for (var, value, needle) in [
+        ("VEMLIGHT_BIND", "nonsense", "not an address"),
+        ("VEMLIGHT_TOKEN", "", "set but empty"),
+    ] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+            .args(["serve", "--sky-size", "64x32"])
+            .env(var, value)
+            .output()
+            .unwrap();
+        assert_fails_with(&out, needle);
+    }
     // A port already taken is a clear error too.
     let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = taken.local_addr().unwrap().to_string();

@@ -226,7 +226,7 @@ pub fn app(state: AppState) -> Router {
 }
 
 /// How long open requests and WebSocket clients get to finish once shutdown has begun.
-pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
+pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 
 /// A connection must send a request's whole header within this time (and an idle kept-alive
 /// connection is closed after it), so that connections that trickle in headers or say nothing
@@ -261,7 +261,7 @@ pub async fn run(
                 Err(e) => {
                     // Out of file descriptors, say: let open connections finish some.
                     tracing::warn!("cannot accept a connection: {e}");
-                    tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                    tokio::time::sleep(Duration::from_millis(100)).await;
                     continue;
                 }
             },
@@ -315,7 +315,7 @@ pub async fn run(
         > 0
         && tokio::time::Instant::now() < deadline
     {
-        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+        tokio::time::sleep(Duration::from_millis(10)).await;
     }
     Ok(())
 }
