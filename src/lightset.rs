@@ -51,9 +51,11 @@ pub struct LightSet {
 
 impl LightSet {
     /// A document for `lights` computed from `map`; sequence numbers, timestamps, error and
-    /// timings are the caller's to fill in.
+    /// timings are the caller's to fill in. Lights without energy are left out (DESIGN.md: every
+    /// light carries energy), and `diagnostics.lights_short` says how many fewer than
+    /// `lights_requested` the set holds.
     pub fn new(
-        lights: Vec<Light>,
+        mut lights: Vec<Light>,
         map: &EnvMap,
         method: Method,
         domain: Domain,
@@ -62,6 +64,11 @@ impl LightSet {
         domain_side: usize,
     ) -> Self {
         let now = now_ns();
+        lights.retain(Light::carries_energy);
+        let short = match lights_requested.saturating_sub(lights.len()) {
+            0 => None,
+            k => Some(k),
+        };
         LightSet {
             schema: SCHEMA_ID.into(),
             seq: 0,
@@ -82,6 +89,7 @@ impl LightSet {
                 overbright_pixels: map.repairs.overbright_pixels,
                 projection: map.projection.name().into(),
                 lights_requested,
+                lights_short: short,
                 domain_side,
                 ..Diagnostics::default()
             },
@@ -104,6 +112,10 @@ pub struct Diagnostics {
     pub projection: String,
     /// Light count asked for (the cap, with `max_error`).
     pub lights_requested: usize,
+    /// How many fewer lights than asked the map could give (every light carries energy; a map
+    /// with fewer lit regions gives fewer lights). Absent when none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lights_short: Option<usize>,
     /// Side of the equal-area domain square.
     pub domain_side: usize,
     /// Relative RMS diffuse irradiance error against the map (ALGORITHMS.md §8), when computed.

@@ -221,6 +221,7 @@ impl TemporalFilter {
                 let mut dir = Vec3::ZERO;
                 let mut irr = [0.0f64; 3];
                 let mut sr = 0.0f64;
+                let mut radius = 0.0f64;
                 for (h, past) in taps.iter().zip(hist.iter().rev()) {
                     let w = (h / norm) as f32;
                     dir += Vec3::from_array(past.to_light) * w;
@@ -228,6 +229,7 @@ impl TemporalFilter {
                         irr[c] += h / norm * past.irradiance[c] as f64;
                     }
                     sr += h / norm * past.solid_angle as f64;
+                    radius += h / norm * past.angular_radius as f64;
                 }
                 Light {
                     id: l.id,
@@ -238,6 +240,7 @@ impl TemporalFilter {
                     // Negative sinc taps can undershoot: power is never negative.
                     irradiance: irr.map(|v| v.max(0.0) as f32),
                     solid_angle: sr.max(0.0) as f32,
+                    angular_radius: radius.max(0.0) as f32,
                 }
             })
             .collect()
@@ -254,6 +257,7 @@ mod tests {
             to_light: dir.normalize().to_array(),
             irradiance: [power; 3],
             solid_angle: 0.1,
+            angular_radius: 0.0,
         }
     }
 

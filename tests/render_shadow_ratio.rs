@@ -47,6 +47,7 @@ fn light(id: u32, to_light: Vec3, e: f32) -> Light {
         to_light: to_light.normalize().to_array(),
         irradiance: [e; 3],
         solid_angle: 0.01,
+        angular_radius: 0.0,
     }
 }
 

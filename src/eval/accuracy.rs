@@ -6,12 +6,13 @@
 //! (resampling included, decoding excluded), against ground truth by brute force over every source
 //! pixel (ALGORITHMS.md §8). The L2 SH irradiance is one more row per map (diffuse only, no lights).
 
+use super::shadowed::{ShadowReference, ShadowScene, scenes, sky_emitters};
 use super::speed::median;
 use crate::envmap::EnvMap;
 use crate::lights::error::{
     DiffuseError, GLOSSY_EXPONENTS, GlossyReference, IrradianceReference, map_emitters,
 };
-use crate::lights::{ExtractOptions, Extractor, Method, sh};
+use crate::lights::{ExtractOptions, Extractor, Light, Method, sh};
 use crate::sampling::{Domain, Resampler};
 use std::time::Instant;
 
@@ -36,22 +37,59 @@ pub struct AccuracyRow {
     pub glossy: [Option<f64>; 2],
     /// Median seconds per frame, single thread.
     pub time_s: f64,
+    /// Shadowed error (ALGORITHMS.md §9): relative RMS per scene of [`super::shadowed::scenes`],
+    /// at the counts of [`SHADOW_COUNTS`] (empty elsewhere and for SH).
+    pub shadowed: Vec<f64>,
+    /// Lights that carry energy.
+    pub alive: usize,
 }
+
+impl AccuracyRow {
+    /// The shadowed error averaged over the scenes, if measured.
+    pub fn shadowed_mean(&self) -> Option<f64> {
+        (!self.shadowed.is_empty())
+            .then(|| self.shadowed.iter().sum::<f64>() / self.shadowed.len() as f64)
+    }
+}
+
+/// Light counts at which the shadowed error is measured (it costs a ray per light per probe).
+pub const SHADOW_COUNTS: [usize; 5] = [16, 32, 64, 128, 256];
+
+/// Probe spacing of the shadow scenes, metres.
+pub const SHADOW_PROBE_STEP: f64 = 0.25;
 
 /// Ground truth of one map in one domain.
 pub struct Truth {
     pub diffuse: IrradianceReference,
     pub glossy: [GlossyReference; 2],
+    /// The shadow scenes and their references (sphere domain only: the ground sees the sky).
+    pub shadow: Vec<(ShadowScene, ShadowReference)>,
 }
 
 impl Truth {
     /// Brute force over every pixel of the map inside the domain.
     pub fn new(map: &EnvMap, domain: Domain) -> Self {
         let emitters = map_emitters(map, domain);
+        let sky = sky_emitters(map);
         Truth {
             diffuse: IrradianceReference::from_emitters(&emitters),
             glossy: GLOSSY_EXPONENTS.map(|e| GlossyReference::from_emitters(&emitters, e)),
+            shadow: scenes(SHADOW_PROBE_STEP)
+                .into_iter()
+                .map(|s| {
+                    let r = ShadowReference::new(&s, &sky);
+                    (s, r)
+                })
+                .collect(),
         }
+    }
+
+    /// The shadowed error of `lights` in every scene.
+    pub fn shadowed(&self, lights: &[Light]) -> Vec<f64> {
+        self.shadow
+            .iter()
+            .map(|(s, r)| r.error(s, lights))
+            .collect()
     }
 }
 
@@ -84,6 +122,8 @@ pub fn evaluate_map(
                 side: None,
             };
             let mut out = ex.extract(map, &opts);
+            // k-means is the floor, not a contender for speed: one run.
+            let reps = if method == Method::KMeans { 1 } else { reps };
             let mut times: Vec<f64> = (0..reps.max(1))
                 .map(|_| {
                     let t = Instant::now();
@@ -99,6 +139,12 @@ pub fn evaluate_map(
                 diffuse: truth.diffuse.error(&out.lights),
                 glossy: [0, 1].map(|k| Some(truth.glossy[k].error(&out.lights).rel_rms)),
                 time_s: median(&mut times),
+                shadowed: if SHADOW_COUNTS.contains(&n) {
+                    truth.shadowed(&out.lights)
+                } else {
+                    Vec::new()
+                },
+                alive: out.lights.iter().filter(|l| l.carries_energy()).count(),
             });
         }
         tick();
@@ -135,18 +181,20 @@ fn sh_row(name: &str, map: &EnvMap, domain: Domain, truth: &Truth, reps: usize) 
         diffuse: truth.diffuse.error_of(&estimate),
         glossy: [None, None],
         time_s: median(&mut times),
+        shadowed: Vec::new(),
+        alive: 0,
     }
 }
 
 /// accuracy.csv.
 pub fn to_csv(rows: &[AccuracyRow]) -> String {
     let mut s = String::from(
-        "map,domain,method,lights,diffuse_rel_rms,diffuse_rel_max,glossy32_rel_rms,glossy128_rel_rms,time_ms\n",
+        "map,domain,method,lights,diffuse_rel_rms,diffuse_rel_max,glossy32_rel_rms,glossy128_rel_rms,time_ms,shadowed_rel_rms,lights_with_energy\n",
     );
     let opt = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
     for r in rows {
         s += &format!(
-            "{},{},{},{},{:.6},{:.6},{},{},{:.4}\n",
+            "{},{},{},{},{:.6},{:.6},{},{},{:.4},{},{}\n",
             r.map,
             r.domain.name(),
             r.method,
@@ -156,6 +204,8 @@ pub fn to_csv(rows: &[AccuracyRow]) -> String {
             opt(r.glossy[0]),
             opt(r.glossy[1]),
             r.time_s * 1e3,
+            opt(r.shadowed_mean()),
+            r.alive,
         );
     }
     s

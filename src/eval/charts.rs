@@ -22,6 +22,8 @@ fn colour(method: &str) -> RGBColor {
         "paper" => RGBColor(44, 160, 44),
         "median-cut" => RGBColor(214, 39, 40),
         "inverse-cdf" => RGBColor(148, 103, 189),
+        "vmlps" => RGBColor(255, 127, 14),
+        "k-means" => RGBColor(23, 190, 207),
         _ => RGBColor(90, 90, 90),
     }
 }
@@ -394,4 +396,96 @@ fn format_pct(y: f64) -> String {
     } else {
         format!("{p:.2}%")
     }
+}
+
+/// frontier.svg: each placement of the default method as a point (worst map over the sweep's
+/// maps and counts): diffuse ÷ k-means against shadowed ÷ median cut, both log scale, with the
+/// targets (1.25 and 1) as lines; one colour per density exponent, labelled by its cap.
+pub fn frontier(rows: &[super::per_map::FrontierRow], path: &Path) -> anyhow::Result<()> {
+    use super::per_map::{by_placement, worst_of};
+    let points: Vec<(f64, f64, f32, f32)> = by_placement(rows)
+        .into_iter()
+        .map(|(p, rs)| {
+            let ((d, _), (s, _)) = worst_of(&rs);
+            (d, s, p.exponent, p.max_seeds_per_texel)
+        })
+        .filter(|p| p.0.is_finite() && p.1.is_finite() && p.0 > 0.0 && p.1 > 0.0)
+        .collect();
+    let root = SVGBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE).map_err(plot_err)?;
+    let fold = |f: fn(f64, f64) -> f64, init: f64, g: fn(&(f64, f64, f32, f32)) -> f64| {
+        points.iter().map(g).fold(init, f)
+    };
+    let x0 = fold(f64::min, 1.0, |p| p.0) * 0.8;
+    let x1 = fold(f64::max, 1.25, |p| p.0) * 1.25;
+    let y0 = fold(f64::min, 1.0, |p| p.1) * 0.8;
+    let y1 = fold(f64::max, 1.0, |p| p.1) * 1.25;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Placement frontier of the default method (worst map and N)",
+            ("sans-serif", 20),
+        )
+        .margin(12)
+        .x_label_area_size(42)
+        .y_label_area_size(64)
+        .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("diffuse error ÷ converged k-means (target ≤ 1.25)")
+        .y_desc("shadowed error ÷ median cut (target ≤ 1)")
+        .x_label_formatter(&|x| format!("{x:.2}"))
+        .y_label_formatter(&|y| format!("{y:.2}"))
+        .draw()
+        .map_err(plot_err)?;
+    let grey = RGBColor(150, 150, 150);
+    chart
+        .draw_series(LineSeries::new(
+            vec![(1.25, y0), (1.25, y1)],
+            grey.stroke_width(1),
+        ))
+        .map_err(plot_err)?;
+    chart
+        .draw_series(LineSeries::new(
+            vec![(x0, 1.0), (x1, 1.0)],
+            grey.stroke_width(1),
+        ))
+        .map_err(plot_err)?;
+    let palette = [
+        RGBColor(31, 119, 180),
+        RGBColor(44, 160, 44),
+        RGBColor(255, 127, 14),
+        RGBColor(148, 103, 189),
+        RGBColor(214, 39, 40),
+    ];
+    let mut exponents: Vec<f32> = points.iter().map(|p| p.2).collect();
+    exponents.sort_by(f32::total_cmp);
+    exponents.dedup();
+    for (k, e) in exponents.iter().enumerate() {
+        let c = palette[k % palette.len()];
+        let pts: Vec<&(f64, f64, f32, f32)> = points.iter().filter(|p| p.2 == *e).collect();
+        chart
+            .draw_series(pts.iter().map(|p| Circle::new((p.0, p.1), 5, c.filled())))
+            .map_err(plot_err)?
+            .label(format!("exponent {e}"))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.filled()));
+        chart
+            .draw_series(pts.iter().map(|p| {
+                let cap = if p.3 > 0.0 {
+                    format!("cap {}", p.3)
+                } else {
+                    "no cap".into()
+                };
+                Text::new(cap, (p.0 * 1.03, p.1), ("sans-serif", 11).into_font())
+            }))
+            .map_err(plot_err)?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)?;
+    root.present().map_err(plot_err)?;
+    Ok(())
 }

@@ -7,7 +7,9 @@
 
 pub mod accuracy;
 pub mod charts;
+pub mod per_map;
 pub mod scenes;
+pub mod shadowed;
 pub mod speed;
 pub mod stability;
 pub mod temporal;
@@ -70,12 +72,13 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
             frames: 96,
         }
     };
-    let maps = load_maps(&opts.maps)?;
+    let mut maps = load_maps(&opts.maps)?;
     anyhow::ensure!(
         !maps.is_empty(),
         "no .exr/.hdr maps in {}",
         opts.maps.display()
     );
+    maps.extend(scenes::hard_skies(if opts.quick { 512 } else { 1024 }));
     std::fs::create_dir_all(&opts.out)
         .with_context(|| format!("cannot create {}", opts.out.display()))?;
     let domains: Vec<Domain> = if opts.upper {
@@ -85,7 +88,7 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
     };
 
     let methods = crate::lights::Method::ALL.len() + 1;
-    let sequences = 5;
+    let sequences = 3 + 2 * maps.len();
     let hard = stability::hard_cases();
     let total =
         (maps.len() * domains.len() * methods + sequences * plan.frames + hard.len()) as u64;
@@ -99,6 +102,7 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
     // 1. Accuracy × speed.
     let mut rows: Vec<AccuracyRow> = Vec::new();
     let mut extractors = accuracy::extractors();
+    let mut sphere_truths: Vec<Truth> = Vec::new();
     for (name, map) in &maps {
         for &domain in &domains {
             bar.set_message(format!("accuracy: {name} ({})", domain.name()));
@@ -113,6 +117,9 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
                 plan.reps,
                 || bar.inc(1),
             ));
+            if domain == Domain::Sphere {
+                sphere_truths.push(truth);
+            }
         }
     }
     write(&opts.out.join("accuracy.csv"), &accuracy::to_csv(&rows))?;
@@ -138,7 +145,24 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
     )?;
     let accuracy_md = accuracy_markdown(&rows, &domains);
     write(&opts.out.join("accuracy.md"), &accuracy_md)?;
+    let per_map_md = per_map::markdown(&rows);
+    write(&opts.out.join("per_map.md"), &per_map_md)?;
     let accuracy_s = started.elapsed().as_secs_f64();
+
+    // 1b. The placement frontier of the default method (diffuse against shadowed).
+    bar.set_message("placement frontier");
+    let frontier_counts: Vec<usize> = [16, 64, 256]
+        .into_iter()
+        .filter(|n| plan.counts.contains(n))
+        .collect();
+    let frontier_rows = per_map::frontier(&maps, &sphere_truths, &rows, &frontier_counts);
+    write(
+        &opts.out.join("frontier.csv"),
+        &per_map::frontier_csv(&frontier_rows),
+    )?;
+    charts::frontier(&frontier_rows, &opts.out.join("frontier.svg"))?;
+    let frontier_md = per_map::frontier_markdown(&frontier_rows);
+    write(&opts.out.join("frontier.md"), &frontier_md)?;
 
     // 2. Temporal stability.
     let t_temporal = Instant::now();
@@ -147,7 +171,14 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
         .find(|(n, _)| n == SEQUENCE_MAP)
         .unwrap_or(&maps[0]);
     let mut temporal_rows: Vec<TemporalRow> = Vec::new();
-    for mut seq in sequences_for(&base.0, &base.1, plan.frames) {
+    let mut seqs = sequences_for(&base.0, &base.1, plan.frames);
+    // Slow rotations of every map (ALGORITHMS.md §11), beside the base map's own sequences.
+    for (name, map) in &maps {
+        if name != &base.0 {
+            seqs.extend(rotations_for(name, map, plan.frames));
+        }
+    }
+    for mut seq in seqs {
         bar.set_message(format!("temporal: {}", seq.name));
         temporal_rows.extend(run_sequence(
             &mut seq,
@@ -202,6 +233,8 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
         let mut text = std::fs::read_to_string(doc)?;
         for (name, body) in [
             ("accuracy", &accuracy_md),
+            ("per-map", &per_map_md),
+            ("frontier", &frontier_md),
             ("temporal", &temporal_md),
             ("stability", &stability_md),
             ("run", &run_md),
@@ -210,7 +243,9 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
         }
         write(doc, &text)?;
     }
-    Ok(format!("{accuracy_md}\n{temporal_md}\n{run_md}"))
+    Ok(format!(
+        "{accuracy_md}\n{per_map_md}\n{frontier_md}\n{temporal_md}\n{run_md}"
+    ))
 }
 
 /// Decodes every .exr/.hdr file of a directory, sorted by name.
@@ -225,6 +260,27 @@ fn load_maps(dir: &Path) -> anyhow::Result<Vec<(String, EnvMap)>> {
             Ok((name, EnvMap::open(&p, None, DEFAULT_MAX_PIXELS)?))
         })
         .collect()
+}
+
+/// Yaw and pitch at [`ROTATION_DEG_PER_FRAME`] of one map, named `map:yaw`, `map:pitch`.
+fn rotations_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence<'a>> {
+    let dirs = std::rc::Rc::new(LatLongDirs::new(map.width, map.height));
+    let step = ROTATION_DEG_PER_FRAME.to_radians();
+    let (d1, d2) = (dirs.clone(), dirs);
+    vec![
+        Sequence {
+            name: format!("{name}:yaw"),
+            description: format!("{name} rotated {ROTATION_DEG_PER_FRAME}°/frame about +Y"),
+            frames,
+            render: Box::new(move |t| d1.rotated(map, DQuat::from_rotation_y(step * t as f64))),
+        },
+        Sequence {
+            name: format!("{name}:pitch"),
+            description: format!("{name} rotated {ROTATION_DEG_PER_FRAME}°/frame about +X"),
+            frames,
+            render: Box::new(move |t| d2.rotated(map, DQuat::from_rotation_x(step * t as f64))),
+        },
+    ]
 }
 
 /// The temporal sequences of issue 5, rendered on demand.
@@ -243,13 +299,13 @@ fn sequences_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence
     });
     vec![
         Sequence {
-            name: "yaw".into(),
+            name: format!("{name}:yaw"),
             description: format!("{name} rotated {ROTATION_DEG_PER_FRAME}°/frame about +Y"),
             frames,
             render: Box::new(move |t| d1.rotated(map, DQuat::from_rotation_y(step * t as f64))),
         },
         Sequence {
-            name: "pitch".into(),
+            name: format!("{name}:pitch"),
             description: format!("{name} rotated {ROTATION_DEG_PER_FRAME}°/frame about +X"),
             frames,
             render: Box::new(move |t| d2.rotated(map, DQuat::from_rotation_x(step * t as f64))),

@@ -194,3 +194,53 @@ pub fn scaled(map: &EnvMap, gain: f32) -> EnvMap {
     }
     out
 }
+
+/// The synthetic hard skies of the evaluation, `width` × `width/2` lat-long: the built-in
+/// Hosek-Wilkie sky with a sun of the real 0.53° and the model's energy and circumsolar glare
+/// (low and high, clear and hazy, one with clouds), and a room lit by a window and a lamp — the
+/// cases the shared maps have few of.
+pub fn hard_skies(width: usize) -> Vec<(String, EnvMap)> {
+    use crate::capture::synthetic::{SyntheticConfig, SyntheticSky};
+    let sky = |elev: f64, turbidity: f64, clouds: f64| {
+        SyntheticSky::new(SyntheticConfig {
+            width,
+            height: width / 2,
+            start_elevation_deg: elev,
+            sun_speed_deg_per_s: 0.0,
+            turbidity,
+            clouds,
+            cloud_drift_deg_per_s: 0.0,
+            switch_light: None,
+            ..SyntheticConfig::default()
+        })
+        .render(0.0)
+    };
+    vec![
+        ("sky-low-clear".into(), sky(6.0, 2.0, 0.0)),
+        ("sky-high-clear".into(), sky(55.0, 2.0, 0.0)),
+        ("sky-low-hazy".into(), sky(12.0, 8.0, 0.0)),
+        ("sky-high-hazy-clouds".into(), sky(40.0, 6.0, 0.4)),
+        ("room-window-lamp".into(), room(width)),
+    ]
+}
+
+/// A room lit by a window and a lamp: dim walls, a brighter floor patch, a window of bright
+/// daylight on the −Z wall (about 30° × 30°), and a small ceiling lamp (1° radius) carrying 40 %
+/// of the room's other light.
+pub fn room(width: usize) -> EnvMap {
+    let dirs = LatLongDirs::new(width, width / 2);
+    let base = dirs.map(|d| {
+        let wall = if d.y < -0.3 { 0.05 } else { 0.08 };
+        let ahead = -d.z;
+        let window = ahead > 0.5 && (d.x / ahead).abs() < 0.3 && {
+            let up = d.y / ahead;
+            (0.05..0.6).contains(&up)
+        };
+        if window {
+            [2.6, 3.0, 3.6]
+        } else {
+            [wall, wall * 0.95, wall * 0.9]
+        }
+    });
+    with_lamp(&base, dir_from_elev_azim(65.0, 120.0), 1.0, 0.4)
+}

@@ -39,7 +39,7 @@ pub fn standard_cases(latlong: &EnvMap, lights: usize) -> Vec<Case> {
         ("fisheye 640x480", &fisheye, Domain::Upper),
         ("latlong 1024x512", latlong, Domain::Sphere),
     ] {
-        for method in Method::ALL {
+        for method in Method::STREAMING {
             cases.push(Case {
                 name: format!("{label} -> {lights} lights, {}", method.name()),
                 map: map.clone(),

@@ -84,7 +84,7 @@ pub fn run_sequence(
     let normals = fibonacci_sphere(TEMPORAL_NORMALS);
     let fir = FilterSpec::default();
     let mut tracks: Vec<Track> = Vec::new();
-    for method in Method::ALL {
+    for method in Method::STREAMING {
         for filtered in [false, true] {
             if filtered && !with_fir {
                 continue;
@@ -106,14 +106,15 @@ pub fn run_sequence(
         prev: Vec::new(),
         speeds: Vec::new(),
     });
-    let mut extractors: Vec<Extractor> = Method::ALL.iter().map(|_| Extractor::new()).collect();
+    let mut extractors: Vec<Extractor> =
+        Method::STREAMING.iter().map(|_| Extractor::new()).collect();
     let mut resampler: Option<Resampler> = None;
     let mut truth_series = Vec::with_capacity(seq.frames);
 
     for t in 0..seq.frames {
         let map = (seq.render)(t);
         truth_series.push(truth(&map, domain, &normals));
-        let outs: Vec<Vec<Light>> = Method::ALL
+        let outs: Vec<Vec<Light>> = Method::STREAMING
             .iter()
             .zip(&mut extractors)
             .map(|(&method, ex)| {
@@ -140,7 +141,7 @@ pub fn run_sequence(
                 );
                 continue;
             };
-            let raw = &outs[Method::ALL
+            let raw = &outs[Method::STREAMING
                 .iter()
                 .position(|&m| m == method)
                 .expect("listed")];

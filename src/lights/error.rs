@@ -276,6 +276,7 @@ mod tests {
             to_light: dir.normalize().to_array(),
             irradiance: [y; 3],
             solid_angle: 0.0,
+            angular_radius: 0.0,
         }
     }
 

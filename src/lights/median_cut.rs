@@ -22,35 +22,54 @@ struct Region {
     energy: f64,
 }
 
-/// Reusable buffers for median cut.
+/// The lat-long grid that median cut and VMLPS partition: the source itself when it is lat-long,
+/// else a lat-long image pulled from the domain square at about its resolution, with each
+/// column's and row's trigonometry cached.
 #[derive(Default)]
-pub struct MedianCut {
-    /// Summed-area table of luminance·Δω, (w+1)×(h+1).
-    sat: Vec<f64>,
-    /// The lat-long view used when the source is not lat-long.
+pub(super) struct LatLong {
     view: LatLongView,
-    /// Per column (sin φ, cos φ) and per row (sin θ, cos θ, Δω) of the lat-long grid.
+    /// Per column (sin φ, cos φ) and per row (sin θ, cos θ, Δω).
     columns: Vec<(f64, f64)>,
     rows: Vec<(f64, f64, f64)>,
 }
 
-impl MedianCut {
-    /// Up to `n` lights by median cut; with `n` not a power of two the last round splits the
-    /// most energetic regions first.
-    pub fn lights(&mut self, map: &EnvMap, image: &DomainImage, n: usize) -> Vec<Light> {
-        let domain = image.domain;
+/// One frame's lat-long grid (see [`LatLong`]).
+pub(super) struct LatLongGrid<'a> {
+    pub w: usize,
+    pub h: usize,
+    /// Rows inside the domain: all for the sphere, the upper half (pixel centre above the
+    /// horizon) for the hemisphere.
+    pub rows: usize,
+    pub pixels: &'a [[f32; 3]],
+    /// Whether `pixels` is the source map (else an approximation pulled from the domain square,
+    /// whose lights are rescaled to the domain's energy, [`rescale_to_domain`]).
+    pub from_source: bool,
+    columns: &'a [(f64, f64)],
+    trig: &'a [(f64, f64, f64)],
+}
+
+impl LatLongGrid<'_> {
+    /// Solid angle of a pixel of row `j`.
+    pub fn row_sr(&self, j: usize) -> f64 {
+        self.trig[j].2
+    }
+
+    /// The direction of pixel (i, j)'s centre: (sin θ sin φ, cos θ, −sin θ cos φ), DESIGN.md's
+    /// lat-long convention.
+    pub fn dir(&self, i: usize, j: usize) -> DVec3 {
+        let (sp, cp) = self.columns[i];
+        let (st, ct, _) = self.trig[j];
+        DVec3::new(st * sp, ct, -st * cp)
+    }
+}
+
+impl LatLong {
+    pub(super) fn view<'a>(&'a mut self, map: &'a EnvMap, image: &DomainImage) -> LatLongGrid<'a> {
         let from_source = map.projection == Projection::LatLong;
         let (w, h, pixels): (usize, usize, &[[f32; 3]]) = if from_source {
             (map.width, map.height, &map.pixels)
         } else {
-            // A lat-long image pulled from the domain square at about its resolution.
             self.view.pull(image)
-        };
-        // Rows inside the domain: all for the sphere, the upper half (pixel centre above the
-        // horizon) for the hemisphere.
-        let rows = match domain {
-            Domain::Sphere => h,
-            Domain::Upper => h.div_ceil(2),
         };
         if self.columns.len() != w || self.rows.len() != h {
             self.columns = (0..w)
@@ -64,7 +83,51 @@ impl MedianCut {
                 })
                 .collect();
         }
-        let row_sr: Vec<f64> = self.rows.iter().map(|r| r.2).collect();
+        LatLongGrid {
+            w,
+            h,
+            rows: match image.domain {
+                Domain::Sphere => h,
+                Domain::Upper => h.div_ceil(2),
+            },
+            pixels,
+            from_source,
+            columns: &self.columns,
+            trig: &self.rows,
+        }
+    }
+}
+
+/// Rescales lights made from a pulled lat-long image so that they carry exactly the domain's
+/// energy, as every method must.
+pub(super) fn rescale_to_domain(lights: &mut [Light], image: &DomainImage) {
+    let want = image.integral();
+    let got = super::total_irradiance(lights);
+    for l in lights {
+        for c in 0..3 {
+            if got[c] > 0.0 {
+                l.irradiance[c] = (l.irradiance[c] as f64 * want[c] / got[c]) as f32;
+            }
+        }
+    }
+}
+
+/// Reusable buffers for median cut.
+#[derive(Default)]
+pub struct MedianCut {
+    /// Summed-area table of luminance·Δω, (w+1)×(h+1).
+    sat: Vec<f64>,
+    grid: LatLong,
+}
+
+impl MedianCut {
+    /// Up to `n` lights by median cut; with `n` not a power of two the last round splits the
+    /// most energetic regions first.
+    pub fn lights(&mut self, map: &EnvMap, image: &DomainImage, n: usize) -> Vec<Light> {
+        let grid = self.grid.view(map, image);
+        let (w, h, rows, pixels, from_source) =
+            (grid.w, grid.h, grid.rows, grid.pixels, grid.from_source);
+        let row_sr: Vec<f64> = (0..h).map(|j| grid.row_sr(j)).collect();
 
         // Summed-area table of luminance energy.
         self.sat.clear();
@@ -116,7 +179,7 @@ impl MedianCut {
         }
 
         // Each region's light: RGB energy and the luminance-weighted mean direction.
-        let (columns, row_trig) = (&self.columns, &self.rows);
+        let (columns, row_trig) = (grid.columns, grid.trig);
         let mut lights: Vec<Light> = regions
             .iter()
             .enumerate()
@@ -124,6 +187,7 @@ impl MedianCut {
                 let mut rgb = [0.0f64; 3];
                 let mut dir = DVec3::ZERO;
                 let mut sr = 0.0;
+                let mut lum = 0.0;
                 for j in r.y0..r.y1 {
                     // d = (sin θ sin φ, cos θ, −sin θ cos φ), DESIGN.md's lat-long convention.
                     let (st, ct, dw) = row_trig[j];
@@ -144,6 +208,7 @@ impl MedianCut {
                         rgb[c] += row_rgb[c] * dw;
                     }
                     dir += DVec3::new(sx * st, sy * ct, sz * st) * dw;
+                    lum += sy * dw;
                     sr += dw * (r.x1 - r.x0) as f64;
                 }
                 let centre = || {
@@ -161,21 +226,12 @@ impl MedianCut {
                         .to_array(),
                     irradiance: rgb.map(|v| v as f32),
                     solid_angle: sr as f32,
+                    angular_radius: super::angular_radius(lum, dir.length()),
                 }
             })
             .collect();
         if !from_source {
-            // The pulled lat-long image approximates the domain square; rescale so the lights
-            // carry exactly the domain's energy, as every method must.
-            let want = image.integral();
-            let got = super::total_irradiance(&lights);
-            for l in &mut lights {
-                for c in 0..3 {
-                    if got[c] > 0.0 {
-                        l.irradiance[c] = (l.irradiance[c] as f64 * want[c] / got[c]) as f32;
-                    }
-                }
-            }
+            rescale_to_domain(&mut lights, image);
         }
         lights
     }
@@ -243,4 +299,84 @@ fn split(
             ..second
         },
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Resampler;
+
+    fn latlong(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> EnvMap {
+        let pixels = (0..w * h).map(|k| [f(k % w, k / w); 3]).collect();
+        EnvMap::from_pixels(w, h, pixels, Projection::LatLong).unwrap()
+    }
+
+    fn lights(map: &EnvMap, n: usize) -> Vec<Light> {
+        let image = Resampler::new(map.projection, map.width, map.height, Domain::Sphere, None)
+            .resample(map);
+        MedianCut::default().lights(map, &image, n)
+    }
+
+    /// 2ⁿ regions of equal energy: on a smooth map every light of a 2ᵏ cut carries 1/2ᵏ of the
+    /// energy, within one pixel column or row of the cut (the cut lands on a pixel boundary).
+    #[test]
+    fn cuts_give_two_to_the_n_regions_of_equal_energy() {
+        let map = latlong(256, 128, |i, j| {
+            1.0 + 0.5 * ((i as f32) * 0.05).sin() + j as f32 * 0.01
+        });
+        for k in 0..=5 {
+            let n = 1usize << k;
+            let ls = lights(&map, n);
+            assert_eq!(ls.len(), n, "2^{k}");
+            let total: f64 = ls.iter().map(|l| l.luminance()).sum();
+            for l in &ls {
+                let share = l.luminance() / total;
+                // One pixel row or column of a region with ≥ 8 pixels a side: under 1/8 off.
+                assert!(
+                    (share * n as f64 - 1.0).abs() < 0.15,
+                    "2^{k}: share {share} vs {}",
+                    1.0 / n as f64
+                );
+            }
+        }
+    }
+
+    /// The first cut of a uniform sphere goes across the longer side: the lat-long map is 2π wide
+    /// at the equator and π tall, so the cut is vertical (along a meridian) and the two lights lie
+    /// on opposite sides of it (±X), both on the equator.
+    #[test]
+    fn the_first_cut_is_across_the_longest_side() {
+        let map = latlong(128, 64, |_, _| 1.0);
+        let ls = lights(&map, 2);
+        assert_eq!(ls.len(), 2);
+        for l in &ls {
+            let d = l.dir();
+            assert!(d.x.abs() > 0.5 && d.y.abs() < 1e-3, "{d:?}");
+        }
+        assert!(ls[0].dir().x * ls[1].dir().x < 0.0);
+        // A region squeezed toward a pole (a thin band) is cut along its width, not its height:
+        // a map lit only in the top 8 rows splits into two halves in φ.
+        let band = latlong(128, 64, |_, j| if j < 8 { 1.0 } else { 0.0 });
+        let ls = lights(&band, 2);
+        let (a, b) = (ls[0].dir(), ls[1].dir());
+        assert!(a.y > 0.9 && b.y > 0.9, "{a:?} {b:?}");
+        assert!(a.x * b.x < 0.0 || a.z * b.z < 0.0, "{a:?} {b:?}");
+    }
+
+    /// The split finds the half-energy boundary: for a map whose left quarter holds half the
+    /// energy, the first cut is at the quarter.
+    #[test]
+    fn the_cut_is_at_half_the_energy() {
+        let (w, h) = (128, 64);
+        let map = latlong(w, h, |i, _| if i < w / 4 { 3.0 } else { 1.0 });
+        let ls = lights(&map, 2);
+        let total: f64 = ls.iter().map(|l| l.luminance()).sum();
+        for l in &ls {
+            assert!(
+                (l.luminance() / total - 0.5).abs() < 0.02,
+                "{}",
+                l.luminance() / total
+            );
+        }
+    }
 }

@@ -15,8 +15,10 @@
 
 pub mod error;
 pub mod inverse_cdf;
+pub mod kmeans;
 pub mod median_cut;
 pub mod sh;
+pub mod vmlps;
 
 use crate::envmap::EnvMap;
 use crate::sampling::pointset::voronoi_raster;
@@ -37,6 +39,12 @@ pub struct Light {
     pub irradiance: [f32; 3],
     /// Solid angle (sr) of the region the light stands for.
     pub solid_angle: f32,
+    /// Angular radius (radians) of the uniform disc whose energy has the same RMS spread about
+    /// `to_light` as the light's region (ALGORITHMS.md §12): 2·√(1 − |M|/P), P = ∫Y dω and
+    /// M = ∫Y ω dω over the region. What a client's soft shadow (a disc light, PCSS, a sun radius)
+    /// needs; 0 for a point. Older documents without it read as 0.
+    #[serde(default)]
+    pub angular_radius: f32,
 }
 
 impl Light {
@@ -47,6 +55,30 @@ impl Light {
     pub fn luminance(&self) -> f64 {
         crate::envmap::luminance64(self.irradiance.map(f64::from))
     }
+
+    /// Whether the light carries any energy (DESIGN.md: every light of a set does).
+    pub fn carries_energy(&self) -> bool {
+        self.irradiance.iter().any(|&c| c > 0.0)
+    }
+
+    /// The region's luminance moment M = ∫Y ω dω, recovered from the luminance and the angular
+    /// radius (|M| = P·(1 − r²/4), ALGORITHMS.md §12): lights merged by summing moments keep
+    /// the combined region's spread.
+    pub fn moment(&self) -> DVec3 {
+        let r = self.angular_radius as f64;
+        self.dir() * self.luminance() * (1.0 - 0.25 * r * r).max(0.0)
+    }
+}
+
+/// The angular radius of a region of luminance energy `energy` whose moment has length
+/// `moment_len` (ALGORITHMS.md §12): the radius of the uniform disc with the same RMS spread,
+/// 2·√(1 − |M|/P), at most π.
+pub fn angular_radius(energy: f64, moment_len: f64) -> f32 {
+    if energy <= 0.0 || !energy.is_finite() || !moment_len.is_finite() {
+        return 0.0;
+    }
+    let spread = (1.0 - moment_len / energy).clamp(0.0, 1.0);
+    (2.0 * spread.sqrt()).min(std::f64::consts::PI) as f32
 }
 
 /// How lights are computed from a map.
@@ -64,6 +96,12 @@ pub enum Method {
     /// points; lights then exactly as [`Method::Voronoi`] (nearest light on the sphere, centroid).
     /// Baseline, ALGORITHMS.md §7.
     InverseCdf,
+    /// Converged spherical k-means (Kollig & Keller 2003), k-means++ seeds: the practical floor of
+    /// the unshadowed diffuse error (ALGORITHMS.md §10). A baseline: slow, ids not stable.
+    KMeans,
+    /// Variance-minimising cuts (Viriyothai & Debevec 2009, ALGORITHMS.md §10). A baseline, ids
+    /// not stable.
+    Vmlps,
 }
 
 impl Method {
@@ -73,20 +111,33 @@ impl Method {
             Method::Paper => "paper",
             Method::MedianCut => "median-cut",
             Method::InverseCdf => "inverse-cdf",
+            Method::KMeans => "k-means",
+            Method::Vmlps => "vmlps",
         }
     }
 
     /// Every method, the default first.
-    pub const ALL: [Method; 4] = [
+    pub const ALL: [Method; 6] = [
         Method::Voronoi,
         Method::Paper,
         Method::MedianCut,
         Method::InverseCdf,
+        Method::Vmlps,
+        Method::KMeans,
+    ];
+
+    /// The methods fast enough for a video stream (k-means iterates to convergence).
+    pub const STREAMING: [Method; 5] = [
+        Method::Voronoi,
+        Method::Paper,
+        Method::MedianCut,
+        Method::InverseCdf,
+        Method::Vmlps,
     ];
 
     /// Whether light id k is the same progressive point in every frame.
     pub fn ids_are_stable(self) -> bool {
-        !matches!(self, Method::MedianCut)
+        !matches!(self, Method::MedianCut | Method::KMeans | Method::Vmlps)
     }
 }
 
@@ -98,8 +149,10 @@ impl std::str::FromStr for Method {
             "paper" => Ok(Method::Paper),
             "median-cut" | "mediancut" => Ok(Method::MedianCut),
             "inverse-cdf" | "inversecdf" => Ok(Method::InverseCdf),
+            "k-means" | "kmeans" => Ok(Method::KMeans),
+            "vmlps" => Ok(Method::Vmlps),
             _ => Err(format!(
-                "unknown method '{s}' (expected voronoi, paper, median-cut or inverse-cdf)"
+                "unknown method '{s}' (expected voronoi, paper, median-cut, inverse-cdf, vmlps or k-means)"
             )),
         }
     }
@@ -175,15 +228,135 @@ pub struct Extractor {
     /// Extra Lloyd steps of the voronoi method (0: the one step of ALGORITHMS.md §4).
     refine: usize,
     inverse_cdf: inverse_cdf::InverseCdf,
+    /// How the voronoi method shapes its warp's density.
+    placement: Placement,
+    /// The warp's density per texel (the luminance reshaped by `placement`).
+    density: Vec<f32>,
+    /// The light each texel went to in the last full-resolution assignment (for the repair of
+    /// lights left without energy).
+    owner: Vec<u16>,
+    kmeans: kmeans::KMeans,
+    vmlps: vmlps::Vmlps,
+}
+
+/// How the default method turns luminance into the density its progressive points are warped by
+/// (ALGORITHMS.md §4, design; the measured choice is in docs/EVALUATION.md "Placement").
+///
+/// The density is Y^`exponent`, water-filled at a cap so that no texel expects more than
+/// `max_seeds_per_texel` of the N seeds: a compact source (the sun covers a quarter of a texel)
+/// then gets a light of its own instead of tens of seeds that share one texel and leave all but
+/// one light without energy, and the budget it would have taken goes to its surroundings (the
+/// glare that a shadow needs resolved) and to the rest of the sky. The cap level solves
+/// C = c·Σ_t min(d_t, C)/N (continuous in the data, so the warp stays continuous over a video).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Placement {
+    pub exponent: f32,
+    pub max_seeds_per_texel: f32,
+    /// A share of uniform density mixed in (d + β·mean d): bounds how fast a point warped into a
+    /// dark region moves when the data change (its speed is ∝ 1/density), so a seed in a dark
+    /// corner cannot swing across it between frames.
+    pub uniform_share: f32,
+}
+
+impl Default for Placement {
+    fn default() -> Self {
+        Placement {
+            exponent: 0.625,
+            max_seeds_per_texel: 0.5,
+            uniform_share: 0.1,
+        }
+    }
+}
+
+impl Placement {
+    /// `density` = `luminance` reshaped for `n` seeds (see [`Placement`]).
+    pub fn density(&self, luminance: &[f32], n: usize, density: &mut Vec<f32>) {
+        density.clear();
+        let e = self.exponent;
+        density.extend(luminance.iter().map(|&y| {
+            let y = if y.is_finite() { y.max(0.0) } else { 0.0 };
+            if e == 1.0 {
+                y
+            } else if e == 0.5 {
+                y.sqrt()
+            } else {
+                y.powf(e)
+            }
+        }));
+        if self.uniform_share > 0.0 && !density.is_empty() {
+            let mean = density.iter().map(|&d| d as f64).sum::<f64>() / density.len() as f64;
+            let add = (self.uniform_share as f64 * mean) as f32;
+            for d in density.iter_mut() {
+                *d += add;
+            }
+        }
+        let c = self.max_seeds_per_texel as f64;
+        if c <= 0.0 || n == 0 {
+            return;
+        }
+        let nf = n as f64;
+        // g(C) = c·S(C)/N − C with S(C) = Σ min(d, C): concave, g(0) = 0; Newton from the right
+        // converges monotonically to its positive root.
+        let (mut total, mut max) = (0.0f64, 0.0f32);
+        for &d in density.iter() {
+            total += d as f64;
+            max = max.max(d);
+        }
+        if total <= 0.0 || c * total / nf >= max as f64 {
+            return; // no texel over the cap
+        }
+        let mut cap = max as f64;
+        for _ in 0..32 {
+            let (mut s, mut above) = (0.0f64, 0usize);
+            let cf = cap as f32;
+            for &d in density.iter() {
+                if d > cf {
+                    above += 1;
+                    s += cap;
+                } else {
+                    s += d as f64;
+                }
+            }
+            let g = c * s / nf - cap;
+            let slope = c * above as f64 / nf - 1.0;
+            if g >= -1e-9 * cap || slope >= 0.0 {
+                break;
+            }
+            let next = cap - g / slope;
+            if !(next > 0.0) || next >= cap {
+                break;
+            }
+            cap = next;
+        }
+        let cf = cap as f32;
+        for d in density.iter_mut() {
+            *d = d.min(cf);
+        }
+    }
 }
 
 /// Per-light sums over its cell.
 #[derive(Clone, Copy, Debug, Default)]
 struct CellAccum {
-    energy: Vec3,
-    weighted_dir: Vec3,
+    energy: DVec3,
+    /// Σ luminance moment: f64, because the angular radius of a compact cell (the sun's is
+    /// 1 − |M|/P ≈ 10⁻⁵) is a difference of nearly equal sums.
+    weighted_dir: DVec3,
+    /// Σ luminance over the cell (the P of ALGORITHMS.md §12).
+    lum: f64,
     texels: u32,
+    /// The cell's brightest texel luminance, and P and |M| over its core (the texels of at least
+    /// [`CORE_FRACTION`] of it), for the angular radius.
+    peak: f32,
+    core_lum: f64,
+    core_moment: DVec3,
 }
+
+/// Texels of at least this fraction of their cell's peak luminance form the cell's core, whose
+/// spread is the light's angular radius: a shadow's penumbra comes from the bright core, and the
+/// faint wide halo of a cell around the sun (the glare its Voronoi cell also holds) would
+/// otherwise blur a sun's sharp shadow over degrees (measured: a 2.2° radius for a 0.27° sun).
+pub const CORE_FRACTION: f32 = 0.25;
 
 impl Default for Extractor {
     fn default() -> Self {
@@ -201,6 +374,11 @@ impl Default for Extractor {
             median_cut: Default::default(),
             refine: DEFAULT_REFINE,
             inverse_cdf: Default::default(),
+            placement: Placement::default(),
+            density: Vec::new(),
+            owner: Vec::new(),
+            kmeans: Default::default(),
+            vmlps: Default::default(),
         }
     }
 }
@@ -241,6 +419,11 @@ impl Extractor {
         self.refine = steps.min(8);
     }
 
+    /// The density the voronoi method warps its points by (see [`Placement`]).
+    pub fn set_placement(&mut self, placement: Placement) {
+        self.placement = placement;
+    }
+
     /// Resamples `map` into the domain square (cached table), leaving it in `self.image`.
     pub fn resample(&mut self, map: &EnvMap, domain: Domain, side: Option<usize>) -> &DomainImage {
         let r = Resampler::reuse(&mut self.resampler, map, domain, side, 1);
@@ -270,12 +453,6 @@ impl Extractor {
         let side = image.side;
         let mut timings = StageTimings::default();
         let lights = match opts.method {
-            Method::MedianCut => {
-                let t = Instant::now();
-                let l = self.median_cut.lights(map, &image, n);
-                timings.assign_s = t.elapsed().as_secs_f64();
-                l
-            }
             Method::Voronoi | Method::Paper | Method::InverseCdf => {
                 let t = Instant::now();
                 self.warp_seeds(map, &image, opts.method, n);
@@ -286,6 +463,12 @@ impl Extractor {
                 } else {
                     self.assign_spherical(&image)
                 };
+                timings.assign_s = t.elapsed().as_secs_f64();
+                l
+            }
+            Method::MedianCut | Method::KMeans | Method::Vmlps => {
+                let t = Instant::now();
+                let l = self.lights_for(map, &image, opts.method, n);
                 timings.assign_s = t.elapsed().as_secs_f64();
                 l
             }
@@ -339,7 +522,10 @@ impl Extractor {
         let image = self.image.take().expect("resample() or put_image() first");
         let total = image.integral();
         let mut warp_s = 0.0;
-        if method != Method::MedianCut {
+        // The paper and inverse-CDF warps do not depend on N: one warp serves every count. The
+        // default's density is capped for its N (see `Placement`), so it warps per count.
+        let shared_warp = matches!(method, Method::Paper | Method::InverseCdf);
+        if shared_warp {
             let t = Instant::now();
             self.warp_seeds(map, &image, method, max_n);
             warp_s = t.elapsed().as_secs_f64();
@@ -351,8 +537,7 @@ impl Extractor {
                 let n = n.clamp(1, N_MAX);
                 let t = Instant::now();
                 let lights = match method {
-                    Method::MedianCut => self.median_cut.lights(map, &image, n),
-                    Method::Voronoi | Method::Paper | Method::InverseCdf => {
+                    Method::Paper | Method::InverseCdf => {
                         self.seeds.clear();
                         self.seeds.extend_from_slice(&all_seeds[..n]);
                         if method == Method::Paper {
@@ -361,6 +546,7 @@ impl Extractor {
                             self.assign_spherical(&image)
                         }
                     }
+                    _ => self.lights_for(map, &image, method, n),
                 };
                 Extraction {
                     lights,
@@ -379,6 +565,40 @@ impl Extractor {
         out
     }
 
+    /// `n` lights by a method that warps per count or not at all (the default, median cut,
+    /// k-means, VMLPS).
+    fn lights_for(
+        &mut self,
+        map: &EnvMap,
+        image: &DomainImage,
+        method: Method,
+        n: usize,
+    ) -> Vec<Light> {
+        match method {
+            Method::MedianCut => self.median_cut.lights(map, image, n),
+            Method::Vmlps => self.vmlps.lights(map, image, n),
+            Method::KMeans => {
+                let mut km = std::mem::take(&mut self.kmeans);
+                km.seed(image, n);
+                let lights = km.converge(image, |seeds| {
+                    self.seeds.clear();
+                    self.seeds.extend_from_slice(seeds);
+                    self.assign_spherical_once(image, false)
+                });
+                self.kmeans = km;
+                lights
+            }
+            Method::Voronoi | Method::Paper | Method::InverseCdf => {
+                self.warp_seeds(map, image, method, n);
+                if method == Method::Paper {
+                    self.assign_paper(image)
+                } else {
+                    self.assign_spherical(image)
+                }
+            }
+        }
+    }
+
     /// Builds the warp over the luminance and pushes the first `n` progressive points through it:
     /// the continuous warp of the domain square (ALGORITHMS.md §2–3), or for
     /// [`Method::InverseCdf`] the discontinuous one of the lat-long map.
@@ -388,7 +608,13 @@ impl Extractor {
             self.inverse_cdf.seeds(map, image, points, &mut self.seeds);
             return;
         }
-        self.dist.build(&image.luminance, image.side, image.side);
+        if method == Method::Voronoi {
+            self.placement
+                .density(&image.luminance, n, &mut self.density);
+            self.dist.build(&self.density, image.side, image.side);
+        } else {
+            self.dist.build(&image.luminance, image.side, image.side);
+        }
         self.seeds.clear();
         self.seeds.extend(
             points
@@ -400,7 +626,8 @@ impl Extractor {
     /// Default method: spherical Voronoi cells of the seeds, lights at luminance-weighted centroids.
     fn assign_spherical(&mut self, image: &DomainImage) -> Vec<Light> {
         if self.refine == 0 {
-            return self.assign_spherical_once(image, false);
+            let lights = self.assign_spherical_once(image, false);
+            return self.repair_dead(image, lights);
         }
         // Lloyd steps on the sphere: assign, re-seed at the centroids, `refine` times, then the
         // final assignment. The steps only move the seeds, so they run on the image at half
@@ -424,9 +651,149 @@ impl Extractor {
             }
         }
         let lights = self.assign_spherical_once(image, false);
+        let lights = self.repair_dead(image, lights);
         self.seeds = warped;
         self.half_image = half;
         lights
+    }
+
+    /// Gives each light left without energy by the last full-resolution assignment a place of
+    /// its own (DESIGN.md: every light carries energy; N lights asked for are N lights given while
+    /// the map has that many lit texels): the seed moves to the lit texel farthest (luminance ×
+    /// (1 − cos)) from the centroid of the cell with the most k-means energy P − |M|
+    /// (ALGORITHMS.md §10), the other seeds to their lights, and the texels are assigned again.
+    /// A rare path: the capped density of [`Placement`] leaves few such lights.
+    fn repair_dead(&mut self, image: &DomainImage, mut lights: Vec<Light>) -> Vec<Light> {
+        for _round in 0..3 {
+            let dead: Vec<usize> = (0..lights.len())
+                .filter(|&k| self.accum[k].lum <= 0.0)
+                .collect();
+            if dead.is_empty() {
+                break;
+            }
+            let mut donors: Vec<(f64, usize)> = self
+                .accum
+                .iter()
+                .enumerate()
+                .filter(|(_, a)| a.lum > 0.0 && a.texels >= 2)
+                .map(|(k, a)| (a.lum - a.weighted_dir.length(), k))
+                .collect();
+            if donors.is_empty() {
+                break;
+            }
+            donors.sort_by(|a, b| b.0.total_cmp(&a.0));
+            let pairs: Vec<(usize, usize)> = dead
+                .iter()
+                .copied()
+                .zip(donors.iter().map(|d| d.1))
+                .collect();
+            let mut farthest = vec![(0.0f32, u32::MAX); lights.len()];
+            let mut is_donor = vec![false; lights.len()];
+            for &(_, k) in &pairs {
+                is_donor[k] = true;
+            }
+            for (t, &k) in self.owner.iter().enumerate() {
+                let k = k as usize;
+                let y = image.luminance[t];
+                if !is_donor[k] || y <= 0.0 {
+                    continue;
+                }
+                let m = Vec3::from_array(image.moment[t]);
+                let c = Vec3::from_array(lights[k].to_light);
+                let score = y - m.dot(c);
+                if score > farthest[k].0 || farthest[k].1 == u32::MAX {
+                    farthest[k] = (score, t as u32);
+                }
+            }
+            let mut moved = false;
+            for (k, l) in lights.iter().enumerate() {
+                self.seeds[k] = Vec3::from_array(l.to_light);
+            }
+            for &(d, k) in &pairs {
+                let t = farthest[k].1;
+                if t != u32::MAX
+                    && let Some(dir) = Vec3::from_array(image.moment[t as usize]).try_normalize()
+                {
+                    self.seeds[d] = dir;
+                    moved = true;
+                }
+            }
+            if !moved {
+                break;
+            }
+            lights = self.assign_spherical_once(image, false);
+        }
+        self.steal_for_dead(image, lights)
+    }
+
+    /// The last resort of [`repair_dead`](Self::repair_dead), for a light still without energy
+    /// (its new seed lost every texel to a nearer one): it takes the farthest lit texel of the
+    /// cell with the most k-means energy outright, so every light carries energy while the map
+    /// has as many lit texels as lights, and Σ energy is unchanged.
+    fn steal_for_dead(&mut self, image: &DomainImage, lights: Vec<Light>) -> Vec<Light> {
+        let mut changed = false;
+        loop {
+            let Some(dead) = (0..self.accum.len()).find(|&k| self.accum[k].lum <= 0.0) else {
+                break;
+            };
+            let Some(donor) = (0..self.accum.len())
+                .filter(|&k| self.accum[k].lum > 0.0 && self.accum[k].texels >= 2)
+                .max_by(|&a, &b| {
+                    let e = |k: usize| self.accum[k].lum - self.accum[k].weighted_dir.length();
+                    e(a).total_cmp(&e(b))
+                })
+            else {
+                break;
+            };
+            let c = self.accum[donor].weighted_dir.normalize_or_zero();
+            let mut best: Option<(f64, usize)> = None;
+            let mut lit = 0;
+            for (t, &k) in self.owner.iter().enumerate() {
+                let y = image.luminance[t] as f64;
+                if k as usize != donor || y <= 0.0 {
+                    continue;
+                }
+                lit += 1;
+                let score = y - Vec3::from_array(image.moment[t]).as_dvec3().dot(c);
+                if best.is_none_or(|b| score > b.0) {
+                    best = Some((score, t));
+                }
+            }
+            let Some((_, t)) = best.filter(|_| lit >= 2) else {
+                // The donor's texels are one lit texel and unlit ones: it cannot spare any.
+                self.accum[donor].texels = 1;
+                continue;
+            };
+            let radiance = Vec3::from_array(image.radiance[t]).as_dvec3();
+            let moment = Vec3::from_array(image.moment[t]).as_dvec3();
+            let y = image.luminance[t];
+            let d = &mut self.accum[donor];
+            d.energy -= radiance;
+            d.weighted_dir -= moment;
+            d.lum -= y as f64;
+            d.texels -= 1;
+            if y >= CORE_FRACTION * d.peak && d.core_lum > y as f64 {
+                d.core_lum -= y as f64;
+                d.core_moment -= moment;
+            }
+            self.owner[t] = dead as u16;
+            self.accum[dead] = CellAccum {
+                energy: radiance,
+                weighted_dir: moment,
+                lum: y as f64,
+                texels: self.accum[dead].texels + 1,
+                peak: y,
+                core_lum: y as f64,
+                core_moment: moment,
+            };
+            changed = true;
+        }
+        if !changed {
+            return lights;
+        }
+        self.cell_lights(image, |a, seed| {
+            a.weighted_dir.as_vec3().try_normalize().unwrap_or(seed)
+        })
     }
 
     /// One assignment of texels to the nearest seed and the cells' centroids; `half` says which
@@ -449,6 +816,9 @@ impl Extractor {
 
         self.accum.clear();
         self.accum.resize(self.seeds.len(), CellAccum::default());
+        if !half {
+            self.owner.resize(side * side, 0);
+        }
         for cell in 0..grid.cell_count() {
             let cands = grid.candidates(cell);
             let start = grid.cell_starts[cell];
@@ -478,17 +848,33 @@ impl Extractor {
                         continue; // padding
                     }
                     let t = t as usize;
+                    if !half {
+                        self.owner[t] = best[l];
+                    }
                     let a = &mut self.accum[best[l] as usize];
-                    a.energy += Vec3::from_array(image.radiance[t]);
-                    a.weighted_dir += Vec3::from_array(image.moment[t]);
+                    a.energy += Vec3::from_array(image.radiance[t]).as_dvec3();
+                    a.weighted_dir += Vec3::from_array(image.moment[t]).as_dvec3();
+                    a.lum += image.luminance[t] as f64;
+                    a.peak = a.peak.max(image.luminance[t]);
                     a.texels += 1;
+                }
+            }
+        }
+        if !half {
+            // The cores: a second pass over the texels, by the owners just recorded.
+            for (t, &k) in self.owner.iter().enumerate() {
+                let a = &mut self.accum[k as usize];
+                let y = image.luminance[t];
+                if y > 0.0 && y >= CORE_FRACTION * a.peak {
+                    a.core_lum += y as f64;
+                    a.core_moment += Vec3::from_array(image.moment[t]).as_dvec3();
                 }
             }
         }
         // Move each light to its cell's luminance-weighted centroid; a dark or empty cell keeps
         // its seed.
         self.cell_lights(image, |a, seed| {
-            a.weighted_dir.try_normalize().unwrap_or(seed)
+            a.weighted_dir.as_vec3().try_normalize().unwrap_or(seed)
         })
     }
 
@@ -498,18 +884,28 @@ impl Extractor {
         image: &DomainImage,
         dir: impl Fn(&CellAccum, Vec3) -> Vec3,
     ) -> Vec<Light> {
-        let texel_sr = image.texel_solid_angle() as f32;
+        let texel_sr = image.texel_solid_angle();
         self.accum
             .iter()
             .zip(&self.seeds)
             .enumerate()
             .map(|(k, (a, &seed))| {
-                make_light(
-                    k,
-                    dir(a, seed),
-                    a.energy * texel_sr,
-                    a.texels as f32 * texel_sr,
-                )
+                let d = dir(a, seed);
+                // The core's spread about its own centroid when the cores were measured (the
+                // spherical cells), else the whole cell's about the light's direction (the paper
+                // variant's lights sit at their seeds): P − M·d.
+                let (p, along) = if a.core_lum > 0.0 {
+                    (a.core_lum, a.core_moment.length())
+                } else {
+                    (a.lum, a.weighted_dir.dot(d.as_dvec3().normalize_or_zero()))
+                };
+                Light {
+                    id: k as u32,
+                    to_light: d.normalize_or(Vec3::Y).to_array(),
+                    irradiance: (a.energy * texel_sr).as_vec3().to_array(),
+                    solid_angle: (a.texels as f64 * texel_sr) as f32,
+                    angular_radius: angular_radius(p, along),
+                }
             })
             .collect()
     }
@@ -533,20 +929,13 @@ impl Extractor {
                 let gj = ((p.y * PAPER_GRID as f64) as usize).min(PAPER_GRID - 1);
                 let k = cells[gj * PAPER_GRID + gi] as usize;
                 let a = &mut self.accum[k];
-                a.energy += Vec3::from_array(image.radiance[t]);
+                a.energy += Vec3::from_array(image.radiance[t]).as_dvec3();
+                a.weighted_dir += Vec3::from_array(image.moment[t]).as_dvec3();
+                a.lum += image.luminance[t] as f64;
                 a.texels += 1;
             }
         }
         self.cell_lights(image, |_, seed| seed)
-    }
-}
-
-fn make_light(id: usize, dir: Vec3, irradiance: Vec3, solid_angle: f32) -> Light {
-    Light {
-        id: id as u32,
-        to_light: dir.normalize_or(Vec3::Y).to_array(),
-        irradiance: irradiance.to_array(),
-        solid_angle,
     }
 }
 

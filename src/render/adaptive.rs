@@ -30,10 +30,14 @@ pub fn prefix_with_energy(all: &[Light], n: usize, out: &mut Vec<Light>) {
                 da.total_cmp(&db)
             })
             .expect("n > 0");
+        let moment = nearest.moment() + d.moment();
         for c in 0..3 {
             nearest.irradiance[c] += d.irradiance[c];
         }
         nearest.solid_angle += d.solid_angle;
+        // The merged region's spread (ALGORITHMS.md §12), from the summed moments.
+        nearest.angular_radius =
+            crate::lights::angular_radius(nearest.luminance(), moment.length());
     }
     out.truncate(n);
 }
@@ -104,6 +108,7 @@ mod tests {
             to_light: Vec3::from_array(d).normalize().to_array(),
             irradiance: [e; 3],
             solid_angle: 0.5,
+            angular_radius: 0.0,
         }
     }
 

@@ -246,6 +246,7 @@ mod tests {
             to_light: [el.cos() * az.sin(), el.sin(), -el.cos() * az.cos()],
             irradiance: [power; 3],
             solid_angle: 0.01,
+            angular_radius: 0.0,
         }
     }
 

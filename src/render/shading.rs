@@ -797,6 +797,7 @@ mod tests {
             to_light: d.normalize().to_array(),
             irradiance: [1.0; 3],
             solid_angle: 0.1,
+            angular_radius: 0.0,
         };
         // 5° below the horizon: reaches normals tilted 10° toward it. 20° below: cannot.
         let lights = [

@@ -1,0 +1,399 @@
+//! Shadowed accuracy: irradiance on the ground under occluders, what a client draws (ALGORITHMS.md §9).
+//!
+//! A scene is a ground plane y = 0 with a few occluders (spheres, boxes, thin poles) standing on it
+//! or floating above it, and probes on a grid of ground points around them (normal +Y). The
+//! reference sums every source pixel above the horizon with exact ray–occluder visibility:
+//! E(p) = Σ L·ω_y·V(p, ω)·Δω. From lights, E_N(p) = Σ_k Y_k·max(0, l_y)·V̄_k(p), where V̄_k is the
+//! visibility averaged over the light's disc of angular radius `angular_radius` (§12) by a fixed
+//! spiral of [`CONE_SAMPLES`] rays, or the one ray along `to_light` for a point light. The error is
+//! the relative RMS over the probes, √(Σ(E_N − E)²)/√(ΣE²), in luminance, as for the diffuse error.
+
+use crate::envmap::EnvMap;
+use crate::lights::Light;
+use glam::DVec3;
+
+/// Rays per light for the visibility averaged over its disc.
+pub const CONE_SAMPLES: usize = 32;
+
+/// An occluder above the ground plane.
+#[derive(Clone, Copy, Debug)]
+pub enum Occluder {
+    Sphere {
+        centre: DVec3,
+        radius: f64,
+    },
+    /// An axis-aligned box.
+    Box {
+        min: DVec3,
+        max: DVec3,
+    },
+}
+
+impl Occluder {
+    /// A bounding sphere, for the cheap rejection test.
+    fn bound(&self) -> (DVec3, f64) {
+        match *self {
+            Occluder::Sphere { centre, radius } => (centre, radius),
+            Occluder::Box { min, max } => ((min + max) * 0.5, (max - min).length() * 0.5),
+        }
+    }
+
+    /// Whether the ray p + t·d, t > 0, hits the occluder.
+    fn hit(&self, p: DVec3, d: DVec3) -> bool {
+        match *self {
+            Occluder::Sphere { centre, radius } => ray_hits_sphere(p, d, centre, radius),
+            Occluder::Box { min, max } => {
+                let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+                for a in 0..3 {
+                    let (o, v) = (p[a], d[a]);
+                    if v.abs() < 1e-15 {
+                        if o < min[a] || o > max[a] {
+                            return false;
+                        }
+                        continue;
+                    }
+                    let (mut ta, mut tb) = ((min[a] - o) / v, (max[a] - o) / v);
+                    if ta > tb {
+                        std::mem::swap(&mut ta, &mut tb);
+                    }
+                    t0 = t0.max(ta);
+                    t1 = t1.min(tb);
+                    if t0 > t1 {
+                        return false;
+                    }
+                }
+                t1 > 0.0
+            }
+        }
+    }
+
+    /// Whether the ground point `p` lies under (inside the footprint of) the occluder.
+    fn covers(&self, p: DVec3) -> bool {
+        match *self {
+            Occluder::Sphere { centre, radius } => {
+                centre.y <= radius && (p - centre).length() < radius
+            }
+            Occluder::Box { min, max } => {
+                min.y <= 1e-9 && p.x > min.x && p.x < max.x && p.z > min.z && p.z < max.z
+            }
+        }
+    }
+}
+
+fn ray_hits_sphere(p: DVec3, d: DVec3, c: DVec3, r: f64) -> bool {
+    let oc = c - p;
+    let b = oc.dot(d);
+    if b <= 0.0 {
+        return false;
+    }
+    oc.length_squared() - b * b < r * r
+}
+
+/// A ground plane with occluders and its probe points.
+#[derive(Clone, Debug)]
+pub struct ShadowScene {
+    pub name: &'static str,
+    pub occluders: Vec<Occluder>,
+    pub probes: Vec<DVec3>,
+}
+
+impl ShadowScene {
+    fn new(name: &'static str, occluders: Vec<Occluder>, half: f64, step: f64) -> Self {
+        let n = (2.0 * half / step).round() as i64;
+        let mut probes = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                let p = DVec3::new(-half + i as f64 * step, 0.0, -half + j as f64 * step);
+                if !occluders.iter().any(|o| o.covers(p)) {
+                    probes.push(p);
+                }
+            }
+        }
+        ShadowScene {
+            name,
+            occluders,
+            probes,
+        }
+    }
+
+    /// Whether the ray from ground point `p` toward `d` is blocked.
+    fn blocked(&self, p: DVec3, d: DVec3) -> bool {
+        self.occluders.iter().any(|o| o.hit(p, d))
+    }
+}
+
+/// The occluder scenes of the evaluation: compact and large, resting and floating, thin and wide,
+/// so that both a compact sun's penumbra and the sky's soft shadows are probed. `step` is the probe
+/// spacing in metres (0.25 in `vemlight eval`).
+pub fn scenes(step: f64) -> Vec<ShadowScene> {
+    let v = DVec3::new;
+    vec![
+        ShadowScene::new(
+            "spheres",
+            vec![
+                Occluder::Sphere {
+                    centre: v(0.0, 0.5, 0.0),
+                    radius: 0.5,
+                },
+                Occluder::Sphere {
+                    centre: v(1.3, 0.9, 0.8),
+                    radius: 0.25,
+                },
+            ],
+            2.5,
+            step,
+        ),
+        ShadowScene::new(
+            "box-and-table",
+            vec![
+                Occluder::Box {
+                    min: v(-1.2, 0.0, -0.4),
+                    max: v(-0.4, 0.8, 0.4),
+                },
+                // A table top floating 0.75 m above the ground.
+                Occluder::Box {
+                    min: v(0.3, 0.72, -0.6),
+                    max: v(1.5, 0.77, 0.6),
+                },
+            ],
+            2.5,
+            step,
+        ),
+        ShadowScene::new(
+            "poles",
+            [v(-1.0, 0.0, 0.5), v(0.2, 0.0, -0.7), v(1.1, 0.0, 0.6)]
+                .into_iter()
+                .map(|b| Occluder::Box {
+                    min: b - v(0.04, 0.0, 0.04),
+                    max: b + v(0.04, 2.0, 0.04),
+                })
+                .collect(),
+            2.5,
+            step,
+        ),
+    ]
+}
+
+/// Emitters above the horizon (unit direction, luminance × sr): every pixel of `map` with ω_y > 0.
+pub fn sky_emitters(map: &EnvMap) -> Vec<(DVec3, f64)> {
+    let mut out = Vec::new();
+    for j in 0..map.height {
+        for i in 0..map.width {
+            if let Some((d, sr)) = map.projection.pixel(i, j, map.width, map.height)
+                && d.y > 0.0
+            {
+                let y = EnvMap::luminance(map.pixels[j * map.width + i]) as f64;
+                if y > 0.0 {
+                    out.push((d, y * sr * d.y));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The reference irradiance of one scene at its probes, brute force over `emitters`
+/// (from [`sky_emitters`]; their weights already include ω_y).
+pub struct ShadowReference {
+    truth: Vec<f64>,
+}
+
+impl ShadowReference {
+    pub fn new(scene: &ShadowScene, emitters: &[(DVec3, f64)]) -> Self {
+        let open: f64 = emitters.iter().map(|e| e.1).sum();
+        let per_probe = |p: &DVec3| {
+            // Only directions inside an occluder's bounding cap can be blocked.
+            let caps: Vec<(DVec3, f64)> = scene
+                .occluders
+                .iter()
+                .map(|o| {
+                    let (c, r) = o.bound();
+                    let to = c - *p;
+                    let dist = to.length();
+                    let cos = if dist <= r {
+                        -1.0
+                    } else {
+                        (1.0 - (r / dist).powi(2)).max(0.0).sqrt()
+                    };
+                    (to / dist.max(1e-12), cos)
+                })
+                .collect();
+            let mut blocked = 0.0;
+            for &(d, w) in emitters {
+                if caps.iter().any(|(a, cos)| d.dot(*a) >= *cos) && scene.blocked(*p, d) {
+                    blocked += w;
+                }
+            }
+            open - blocked
+        };
+        let threads = std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+            .min(8);
+        let chunk = scene.probes.len().div_ceil(threads).max(1);
+        let truth = std::thread::scope(|s| {
+            let handles: Vec<_> = scene
+                .probes
+                .chunks(chunk)
+                .map(|ps| s.spawn(move || ps.iter().map(per_probe).collect::<Vec<f64>>()))
+                .collect();
+            handles
+                .into_iter()
+                .flat_map(|h| h.join().expect("probe thread"))
+                .collect()
+        });
+        ShadowReference { truth }
+    }
+
+    /// Relative RMS of a light set's shadowed irradiance against the reference.
+    pub fn error(&self, scene: &ShadowScene, lights: &[Light]) -> f64 {
+        let est = lights_irradiance(scene, lights);
+        let (mut num, mut den) = (0.0, 0.0);
+        for (e, t) in est.iter().zip(&self.truth) {
+            num += (e - t) * (e - t);
+            den += t * t;
+        }
+        if den <= 0.0 {
+            return if num <= 0.0 { 0.0 } else { f64::INFINITY };
+        }
+        (num / den).sqrt()
+    }
+
+    pub fn truth(&self) -> &[f64] {
+        &self.truth
+    }
+}
+
+/// E_N at every probe of `scene`: each light's luminance × max(0, l_y) × its disc-averaged visibility.
+pub fn lights_irradiance(scene: &ShadowScene, lights: &[Light]) -> Vec<f64> {
+    let rays: Vec<(Vec<DVec3>, f64)> = lights
+        .iter()
+        .filter(|l| l.to_light[1] > 0.0 && l.luminance() > 0.0)
+        .map(|l| {
+            let d = l.dir();
+            (disc_rays(d, l.angular_radius as f64), l.luminance() * d.y)
+        })
+        .collect();
+    scene
+        .probes
+        .iter()
+        .map(|&p| {
+            rays.iter()
+                .map(|(dirs, w)| {
+                    let open = dirs
+                        .iter()
+                        .filter(|d| d.y > 0.0 && !scene.blocked(p, **d))
+                        .count();
+                    w * open as f64 / dirs.len() as f64
+                })
+                .sum()
+        })
+        .collect()
+}
+
+/// Rays spread evenly (Vogel spiral, equal area) over the disc of angular radius `radius` about `d`;
+/// the single ray `d` when the radius is below 0.01°.
+pub fn disc_rays(d: DVec3, radius: f64) -> Vec<DVec3> {
+    if radius < 0.01f64.to_radians() {
+        return vec![d];
+    }
+    let radius = radius.min(std::f64::consts::FRAC_PI_2);
+    let (u, v) = d.any_orthonormal_pair();
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    // Equal-area rings on the spherical cap: 1 − cos γ uniform in [0, 1 − cos R].
+    let top = 1.0 - radius.cos();
+    (0..CONE_SAMPLES)
+        .map(|i| {
+            let c = 1.0 - top * (i as f64 + 0.5) / CONE_SAMPLES as f64;
+            let s = (1.0 - c * c).max(0.0).sqrt();
+            let phi = golden * i as f64;
+            (d * c + (u * phi.cos() + v * phi.sin()) * s).normalize()
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::envmap::Projection;
+
+    fn light(d: DVec3, y: f32, radius: f32) -> Light {
+        Light {
+            id: 0,
+            to_light: d.normalize().as_vec3().to_array(),
+            irradiance: [y; 3],
+            solid_angle: 0.0,
+            angular_radius: radius,
+        }
+    }
+
+    /// A map that is one small bright disc: its reference equals a light at the disc with the
+    /// disc's radius (cone-averaged visibility), and beats the point light at the penumbra.
+    #[test]
+    fn a_disc_source_is_matched_by_a_light_with_its_radius() {
+        let (w, h) = (1024, 512);
+        let sun = DVec3::new(0.3, 0.8, -0.4).normalize();
+        let r = 2.0f64.to_radians();
+        let mut pixels = vec![[0.0f32; 3]; w * h];
+        let mut energy = 0.0;
+        for j in 0..h {
+            for i in 0..w {
+                let (d, sr) = Projection::LatLong.pixel(i, j, w, h).unwrap();
+                if d.dot(sun) >= r.cos() {
+                    pixels[j * w + i] = [100.0; 3];
+                    energy += 100.0 * sr;
+                }
+            }
+        }
+        let map = EnvMap::from_pixels(w, h, pixels, Projection::LatLong).unwrap();
+        let em = sky_emitters(&map);
+        for scene in scenes(0.25) {
+            let reference = ShadowReference::new(&scene, &em);
+            let disc = reference.error(&scene, &[light(sun, energy as f32, r as f32)]);
+            let point = reference.error(&scene, &[light(sun, energy as f32, 0.0)]);
+            assert!(disc < 0.03, "{}: disc {disc}", scene.name);
+            assert!(disc < point, "{}: disc {disc} point {point}", scene.name);
+            // Open ground far from the occluders sees the whole source.
+            let t = reference.truth();
+            let max = t.iter().copied().fold(0.0, f64::max);
+            let open = energy * sun.y;
+            assert!(
+                (max - open).abs() / open < 0.01,
+                "{}: {max} vs {open}",
+                scene.name
+            );
+        }
+    }
+
+    #[test]
+    fn rays_hit_what_they_should() {
+        let s = Occluder::Sphere {
+            centre: DVec3::new(0.0, 1.0, 0.0),
+            radius: 0.5,
+        };
+        assert!(s.hit(DVec3::ZERO, DVec3::Y));
+        assert!(!s.hit(DVec3::ZERO, -DVec3::Y));
+        assert!(!s.hit(DVec3::ZERO, DVec3::X));
+        let b = Occluder::Box {
+            min: DVec3::new(-0.1, 0.0, -0.1),
+            max: DVec3::new(0.1, 2.0, 0.1),
+        };
+        assert!(b.hit(
+            DVec3::new(-1.0, 0.0, 0.0),
+            DVec3::new(1.0, 1.0, 0.0).normalize()
+        ));
+        assert!(!b.hit(
+            DVec3::new(-1.0, 0.0, 0.0),
+            DVec3::new(-1.0, 1.0, 0.0).normalize()
+        ));
+        assert!(!b.hit(
+            DVec3::new(-1.0, 0.0, 0.0),
+            DVec3::new(1.0, 3.0, 0.0).normalize()
+        ));
+        // Every disc ray lies within the radius.
+        let d = DVec3::new(0.2, 0.9, 0.1).normalize();
+        for r in disc_rays(d, 0.1) {
+            assert!(r.dot(d) >= 0.1f64.cos() - 1e-12);
+        }
+    }
+}
