@@ -174,6 +174,7 @@ fn sustained_synthetic(frames: usize) -> (f64, f64) {
     let mut sky = SyntheticSky::new(SyntheticConfig::default());
     let mut map = sky.render(0.0);
     let mut ex = Extractor::new(); // resamples on this thread: one core
+    ex.set_video(true);
     let mut filter = TemporalFilter::new(&FilterSpec::default());
     let mut render_s = 0.0;
     let start = Instant::now();

@@ -455,6 +455,8 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
         filter_info: FilterInfo::new(&cfg.filter, fps),
     };
     p.extractor.set_refine(cfg.refine);
+    // One camera's frames: each frame's lights start from the last frame's.
+    p.extractor.set_video(true);
     // The newest processed frame (its image stays in the extractor).
     let mut last: Option<LastFrame> = None;
     loop {

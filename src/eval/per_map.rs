@@ -37,7 +37,7 @@ fn maps_of(rows: &[AccuracyRow]) -> Vec<String> {
 }
 
 /// The worst (largest) value of `f` over maps, with the map's name.
-fn worst<'a>(maps: &'a [String], f: impl Fn(&str) -> Option<f64>) -> Option<(f64, &'a str)> {
+fn worst(maps: &[String], f: impl Fn(&str) -> Option<f64>) -> Option<(f64, &str)> {
     maps.iter()
         .filter_map(|m| f(m).filter(|v| v.is_finite()).map(|v| (v, m.as_str())))
         .max_by(|a, b| a.0.total_cmp(&b.0))
@@ -196,6 +196,7 @@ pub fn placements() -> Vec<Placement> {
                 exponent,
                 max_seeds_per_texel,
                 uniform_share,
+                blur: 0,
             });
         }
     }

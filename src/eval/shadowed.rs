@@ -174,18 +174,59 @@ pub fn scenes(step: f64) -> Vec<ShadowScene> {
     ]
 }
 
-/// Emitters above the horizon (unit direction, luminance × sr): every pixel of `map` with ω_y > 0.
+/// Sub-samples per side of a bright pixel in [`sky_emitters`].
+pub const BRIGHT_SUBSAMPLES: usize = 4;
+/// Pixels of at least this fraction of the map's brightest are integrated over their area.
+pub const BRIGHT_FRACTION: f32 = 1e-3;
+
+/// Emitters above the horizon (unit direction, luminance × sr × ω_y): every pixel of `map` with
+/// ω_y > 0. A pixel stands for radiance over its solid angle, not at a point: on a lat-long map
+/// the bright pixels (at least [`BRIGHT_FRACTION`] of the brightest — a sun or a lamp a few
+/// pixels across, whose penumbra the probes resolve) are each split into
+/// [`BRIGHT_SUBSAMPLES`]² emitters over their area, so that a sun drawn into four pixels casts
+/// the penumbra of its disc rather than the four overlapping hard shadows of four points.
 pub fn sky_emitters(map: &EnvMap) -> Vec<(DVec3, f64)> {
+    use crate::envmap::Projection;
+    let peak = map
+        .pixels
+        .iter()
+        .map(|&p| EnvMap::luminance(p))
+        .fold(0.0f32, f32::max);
+    let (w, h) = (map.width as f64, map.height as f64);
+    let latlong_dir = |x: f64, y: f64| {
+        let (st, ct) = (std::f64::consts::PI * y / h).sin_cos();
+        let (sp, cp) = (2.0 * std::f64::consts::PI * (x / w - 0.5)).sin_cos();
+        DVec3::new(st * sp, ct, -st * cp)
+    };
     let mut out = Vec::new();
     for j in 0..map.height {
         for i in 0..map.width {
-            if let Some((d, sr)) = map.projection.pixel(i, j, map.width, map.height)
-                && d.y > 0.0
-            {
-                let y = EnvMap::luminance(map.pixels[j * map.width + i]) as f64;
-                if y > 0.0 {
-                    out.push((d, y * sr * d.y));
+            let Some((d, sr)) = map.projection.pixel(i, j, map.width, map.height) else {
+                continue;
+            };
+            let y = EnvMap::luminance(map.pixels[j * map.width + i]);
+            if y <= 0.0 {
+                continue;
+            }
+            if map.projection == Projection::LatLong && y >= BRIGHT_FRACTION * peak {
+                let k = BRIGHT_SUBSAMPLES;
+                // Sub-pixel solid angles ∝ sin θ at each sub-row, normalised to the pixel's.
+                let subs: Vec<(DVec3, f64)> = (0..k * k)
+                    .map(|s| {
+                        let (u, v) = ((s % k) as f64 + 0.5, (s / k) as f64 + 0.5);
+                        let y_pix = j as f64 + v / k as f64;
+                        let dir = latlong_dir(i as f64 + u / k as f64, y_pix);
+                        (dir, (std::f64::consts::PI * y_pix / h).sin())
+                    })
+                    .collect();
+                let norm: f64 = subs.iter().map(|s| s.1).sum();
+                for (dir, wgt) in subs {
+                    if dir.y > 0.0 && norm > 0.0 {
+                        out.push((dir, y as f64 * sr * wgt / norm * dir.y));
+                    }
                 }
+            } else if d.y > 0.0 {
+                out.push((d, y as f64 * sr * d.y));
             }
         }
     }

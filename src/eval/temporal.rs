@@ -108,6 +108,10 @@ pub fn run_sequence(
     });
     let mut extractors: Vec<Extractor> =
         Method::STREAMING.iter().map(|_| Extractor::new()).collect();
+    // A sequence is a video: the default runs as the daemon runs it (`Extractor::set_video`).
+    for ex in &mut extractors {
+        ex.set_video(true);
+    }
     let mut resampler: Option<Resampler> = None;
     let mut truth_series = Vec::with_capacity(seq.frames);
 

@@ -237,7 +237,19 @@ pub struct Extractor {
     owner: Vec<u16>,
     kmeans: kmeans::KMeans,
     vmlps: vmlps::Vmlps,
+    /// Video mode (see [`set_video`](Self::set_video)): the default method starts each frame's
+    /// Lloyd steps from the previous frame's lights of the same count, domain and side.
+    video: bool,
+    previous: HashMap<(usize, Domain, usize), Vec<Vec3>>,
+    /// Set by `warp_seeds` when a video stream's seeds came from a fresh warp: that frame takes
+    /// [`VIDEO_START_STEPS`] Lloyd steps, so the stream starts near its steady state.
+    fresh_start: bool,
 }
+
+/// Lloyd steps of the first frame of a video stream (see [`Extractor::set_video`]): the later
+/// frames carry on from it, and with only the usual two steps the first frames' lights still
+/// travel 5–17° a frame toward the fixed point.
+pub const VIDEO_START_STEPS: usize = 32;
 
 /// How the default method turns luminance into the density its progressive points are warped by
 /// (ALGORITHMS.md §4, design; the measured choice is in docs/EVALUATION.md "Placement").
@@ -256,6 +268,11 @@ pub struct Placement {
     /// dark region moves when the data change (its speed is ∝ 1/density), so a seed in a dark
     /// corner cannot swing across it between frames.
     pub uniform_share: f32,
+    /// Radius, in texels, of the box blur applied to the density before the warp (0: none). The
+    /// marginal/conditional warp is continuous in the data but not smooth: a lamp entering a row
+    /// turns that row's conditional CDF into a near step, and points slide across the row in a
+    /// frame. Blurred, a compact source enters a row over 2r + 1 texels of motion.
+    pub blur: usize,
 }
 
 impl Default for Placement {
@@ -264,6 +281,7 @@ impl Default for Placement {
             exponent: 0.625,
             max_seeds_per_texel: 0.5,
             uniform_share: 0.1,
+            blur: 0,
         }
     }
 }
@@ -271,18 +289,71 @@ impl Default for Placement {
 impl Placement {
     /// `density` = `luminance` reshaped for `n` seeds (see [`Placement`]).
     pub fn density(&self, luminance: &[f32], n: usize, density: &mut Vec<f32>) {
+        self.shape(luminance, n, density);
+    }
+
+    /// Box blur of radius `r` texels over the `side` × `side` square, separable, clamped at the
+    /// edges (each output the mean of the texels inside the square).
+    fn blur_square(d: &mut [f32], side: usize, r: usize, tmp: &mut Vec<f32>) {
+        if r == 0 || side == 0 {
+            return;
+        }
+        tmp.clear();
+        tmp.resize(d.len(), 0.0);
+        // Rows into tmp, then columns back into d, each with a running sum.
+        for j in 0..side {
+            let row = &d[j * side..(j + 1) * side];
+            let out = &mut tmp[j * side..(j + 1) * side];
+            blur_line(row, out, 1, r);
+        }
+        for i in 0..side {
+            let col: Vec<f32> = (0..side).map(|j| tmp[j * side + i]).collect();
+            let mut out = vec![0.0f32; side];
+            blur_line(&col, &mut out, 1, r);
+            for j in 0..side {
+                d[j * side + i] = out[j];
+            }
+        }
+    }
+
+    fn shape(&self, luminance: &[f32], n: usize, density: &mut Vec<f32>) {
         density.clear();
         let e = self.exponent;
-        density.extend(luminance.iter().map(|&y| {
-            let y = if y.is_finite() { y.max(0.0) } else { 0.0 };
-            if e == 1.0 {
-                y
-            } else if e == 0.5 {
-                y.sqrt()
-            } else {
-                y.powf(e)
+        let clean = |y: f32| if y.is_finite() { y.max(0.0) } else { 0.0 };
+        // Exponents in eighths (the swept ones) by square roots, which vectorise; powf does not.
+        let eighths = e * 8.0;
+        if eighths.fract() == 0.0 && (1.0..=8.0).contains(&eighths) {
+            let k = eighths as u32;
+            density.extend(luminance.iter().map(|&y| {
+                let y = clean(y);
+                if k == 8 {
+                    return y;
+                }
+                let s1 = y.sqrt();
+                let s2 = s1.sqrt();
+                let s3 = s2.sqrt();
+                let mut v = 1.0;
+                if k & 4 != 0 {
+                    v *= s1;
+                }
+                if k & 2 != 0 {
+                    v *= s2;
+                }
+                if k & 1 != 0 {
+                    v *= s3;
+                }
+                v
+            }));
+        } else {
+            density.extend(luminance.iter().map(|&y| clean(y).powf(e)));
+        }
+        if self.blur > 0 {
+            let side = (density.len() as f64).sqrt().round() as usize;
+            if side * side == density.len() {
+                let mut tmp = Vec::new();
+                Self::blur_square(density, side, self.blur, &mut tmp);
             }
-        }));
+        }
         if self.uniform_share > 0.0 && !density.is_empty() {
             let mean = density.iter().map(|&d| d as f64).sum::<f64>() / density.len() as f64;
             let add = (self.uniform_share as f64 * mean) as f32;
@@ -323,7 +394,7 @@ impl Placement {
                 break;
             }
             let next = cap - g / slope;
-            if !(next > 0.0) || next >= cap {
+            if next.is_nan() || next <= 0.0 || next >= cap {
                 break;
             }
             cap = next;
@@ -344,6 +415,7 @@ struct CellAccum {
     weighted_dir: DVec3,
     /// Σ luminance over the cell (the P of ALGORITHMS.md §12).
     lum: f64,
+    /// Texels whose nearest seed this is.
     texels: u32,
     /// The cell's brightest texel luminance, and P and |M| over its core (the texels of at least
     /// [`CORE_FRACTION`] of it), for the angular radius.
@@ -379,6 +451,9 @@ impl Default for Extractor {
             owner: Vec::new(),
             kmeans: Default::default(),
             vmlps: Default::default(),
+            video: false,
+            previous: HashMap::new(),
+            fresh_start: false,
         }
     }
 }
@@ -417,6 +492,23 @@ impl Extractor {
     /// twice as much (docs/EVALUATION.md, temporal table).
     pub fn set_refine(&mut self, steps: usize) {
         self.refine = steps.min(8);
+    }
+
+    /// Video mode, for a stream of frames of one scene (the daemon, `vemlight view`, the temporal
+    /// evaluation): the default method seeds each frame with the previous frame's lights of the
+    /// same count instead of warping the fixed points afresh, so that each light follows what
+    /// its cell holds and moves only as far as that moves. Warping afresh, a lamp that slides
+    /// from one row of the warp's conditional CDFs to the next drags the points of that row across
+    /// it (the warp is continuous but far from smooth there): 20–60° jumps of one light id in one
+    /// frame on the lit interior under a 0.25°/frame rotation. With the previous lights as seeds
+    /// the Lloyd steps of every frame also carry on from where the last frame stopped, so a
+    /// steady scene converges to the k-means fixed point (ALGORITHMS.md §10). The first frame,
+    /// and any frame of another size or count, starts from the warp.
+    pub fn set_video(&mut self, video: bool) {
+        self.video = video;
+        if !video {
+            self.previous.clear();
+        }
     }
 
     /// The density the voronoi method warps its points by (see [`Placement`]).
@@ -463,6 +555,7 @@ impl Extractor {
                 } else {
                     self.assign_spherical(&image)
                 };
+                self.remember(opts.method, &image, &l);
                 timings.assign_s = t.elapsed().as_secs_f64();
                 l
             }
@@ -590,12 +683,26 @@ impl Extractor {
             }
             Method::Voronoi | Method::Paper | Method::InverseCdf => {
                 self.warp_seeds(map, image, method, n);
-                if method == Method::Paper {
+                let lights = if method == Method::Paper {
                     self.assign_paper(image)
                 } else {
                     self.assign_spherical(image)
-                }
+                };
+                self.remember(method, image, &lights);
+                lights
             }
+        }
+    }
+
+    /// In video mode, keeps the default method's lights as the next frame's seeds.
+    fn remember(&mut self, method: Method, image: &DomainImage, lights: &[Light]) {
+        if self.video && method == Method::Voronoi {
+            let seeds = self
+                .previous
+                .entry((lights.len(), image.domain, image.side))
+                .or_default();
+            seeds.clear();
+            seeds.extend(lights.iter().map(|l| Vec3::from_array(l.to_light)));
         }
     }
 
@@ -608,6 +715,16 @@ impl Extractor {
             self.inverse_cdf.seeds(map, image, points, &mut self.seeds);
             return;
         }
+        if method == Method::Voronoi
+            && self.video
+            && let Some(prev) = self.previous.get(&(n, image.domain, image.side))
+        {
+            self.seeds.clear();
+            self.seeds.extend_from_slice(prev);
+            self.fresh_start = false;
+            return;
+        }
+        self.fresh_start = self.video && method == Method::Voronoi;
         if method == Method::Voronoi {
             self.placement
                 .density(&image.luminance, n, &mut self.density);
@@ -625,7 +742,12 @@ impl Extractor {
 
     /// Default method: spherical Voronoi cells of the seeds, lights at luminance-weighted centroids.
     fn assign_spherical(&mut self, image: &DomainImage) -> Vec<Light> {
-        if self.refine == 0 {
+        let steps = if self.fresh_start {
+            self.refine.max(VIDEO_START_STEPS)
+        } else {
+            self.refine
+        };
+        if steps == 0 {
             let lights = self.assign_spherical_once(image, false);
             return self.repair_dead(image, lights);
         }
@@ -640,7 +762,7 @@ impl Extractor {
             refresh_half(image, &mut half, &mut self.half_is_current);
         }
         let warped = self.seeds.clone();
-        for _ in 0..self.refine {
+        for _ in 0..steps {
             let lights = if coarse {
                 self.assign_spherical_once(&half, true)
             } else {
@@ -732,10 +854,7 @@ impl Extractor {
     /// has as many lit texels as lights, and Σ energy is unchanged.
     fn steal_for_dead(&mut self, image: &DomainImage, lights: Vec<Light>) -> Vec<Light> {
         let mut changed = false;
-        loop {
-            let Some(dead) = (0..self.accum.len()).find(|&k| self.accum[k].lum <= 0.0) else {
-                break;
-            };
+        while let Some(dead) = (0..self.accum.len()).find(|&k| self.accum[k].lum <= 0.0) {
             let Some(donor) = (0..self.accum.len())
                 .filter(|&k| self.accum[k].lum > 0.0 && self.accum[k].texels >= 2)
                 .max_by(|&a, &b| {
@@ -851,11 +970,12 @@ impl Extractor {
                     if !half {
                         self.owner[t] = best[l];
                     }
+                    let y = image.luminance[t];
                     let a = &mut self.accum[best[l] as usize];
                     a.energy += Vec3::from_array(image.radiance[t]).as_dvec3();
                     a.weighted_dir += Vec3::from_array(image.moment[t]).as_dvec3();
-                    a.lum += image.luminance[t] as f64;
-                    a.peak = a.peak.max(image.luminance[t]);
+                    a.lum += y as f64;
+                    a.peak = a.peak.max(y);
                     a.texels += 1;
                 }
             }
@@ -1145,4 +1265,17 @@ pub fn total_irradiance(lights: &[Light]) -> [f64; 3] {
         }
     }
     s
+}
+
+/// `out[i]` = the mean of `line[i − r ..= i + r]` (clamped to the line), by a running sum.
+fn blur_line(line: &[f32], out: &mut [f32], _stride: usize, r: usize) {
+    let n = line.len();
+    let mut prefix = vec![0.0f64; n + 1];
+    for i in 0..n {
+        prefix[i + 1] = prefix[i] + line[i] as f64;
+    }
+    for i in 0..n {
+        let (a, b) = (i.saturating_sub(r), (i + r + 1).min(n));
+        out[i] = ((prefix[b] - prefix[a]) / (b - a) as f64) as f32;
+    }
 }
