@@ -33,7 +33,7 @@ struct Globals {
 };
 
 struct Light {
-    // xyz: unit vector toward the light.
+    // xyz: unit vector toward the light; w: its angular radius, radians (ALGORITHMS.md §12).
     to_light: vec4<f32>,
     // rgb: radiance × sr.
     irradiance: vec4<f32>,
@@ -79,8 +79,15 @@ fn vs_light(@builtin(vertex_index) i: u32) -> @builtin(position) vec4<f32> {
     return vec4<f32>(xy, 0.0, 1.0);
 }
 
-// Fraction of group `gi`'s shadow map that sees `world` lit (PCF).
-fn visibility(gi: u32, layer: u32, world: vec3<f32>, n: vec3<f32>) -> f32 {
+// Largest penumbra half-width, in shadow texels (a bound on the taps' spread).
+const c_max_penumbra_texels: f32 = 64.0;
+
+// Fraction of group `gi`'s shadow map that sees `world` lit (PCF). A light of angular radius
+// `radius` (a sun, or a light standing for a patch of sky) casts a penumbra whose half-width is
+// the receiver's distance behind its blocker times tan(radius): five depth loads over the widest
+// penumbra the scene allows find the nearest blocker, and four bilinear taps spread that far
+// apart filter the edge (a small PCSS).
+fn visibility(gi: u32, layer: u32, world: vec3<f32>, n: vec3<f32>, radius: f32) -> f32 {
     if c_pcf_taps == 0u || layer == 0xffffffffu {
         return 1.0;
     }
@@ -93,11 +100,37 @@ fn visibility(gi: u32, layer: u32, world: vec3<f32>, n: vec3<f32>) -> f32 {
     }
     // Beyond the far plane counts as "at the far plane": behind every caster, in front of the clear.
     let depth = clamp(dot(g.depth_row, p), 0.0, 1.0);
-    if c_pcf_taps == 1u {
+    var h = 0.5 * u_globals.params.w;
+    var soft = false;
+    if radius > 0.0 {
+        let size = vec2<f32>(textureDimensions(t_shadow));
+        let cap = c_max_penumbra_texels * u_globals.params.w;
+        let slope = tan(min(radius, 0.5));
+        // The widest penumbra: a blocker as far in front as the scene reaches.
+        let search = clamp(slope * u_globals.fit_reach.x * length(g.u_row.xyz), h, cap);
+        var blocker = 1.0;
+        for (var i = 0u; i < 5u; i++) {
+            var o = vec2<f32>(0.0);
+            if i > 0u {
+                o = vec2<f32>(select(-search, search, (i & 1u) != 0u), select(-search, search, (i & 2u) != 0u));
+            }
+            let texel = clamp(vec2<i32>((uv + o) * size), vec2<i32>(0), vec2<i32>(size) - vec2<i32>(1));
+            blocker = min(blocker, textureLoad(t_shadow, texel, i32(layer), 0));
+        }
+        if blocker < depth {
+            // Depth and u are linear in the world position (orthographic maps): world distance
+            // = Δdepth / |∇depth|, texture distance = world distance × |∇u|.
+            let behind = (depth - blocker) / max(length(g.depth_row.xyz), 1e-12);
+            let spread = behind * slope * length(g.u_row.xyz);
+            h = clamp(spread, h, cap);
+            soft = true;
+        }
+    }
+    if c_pcf_taps == 1u && !soft {
         return textureSampleCompareLevel(t_shadow, s_shadow, uv, layer, depth);
     }
-    // Four bilinear taps half a texel apart: a 3 × 3 tent over the texels.
-    let h = 0.5 * u_globals.params.w;
+    // Four bilinear taps 2h apart: a 3 × 3 tent over the texels for h of half a texel, the
+    // light's penumbra for a soft light.
     var sum = 0.0;
     for (var i = 0u; i < 4u; i++) {
         let o = vec2<f32>(select(-h, h, (i & 1u) != 0u), select(-h, h, (i & 2u) != 0u));
@@ -154,7 +187,9 @@ fn fs_light(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
         }
         // Only lights that reach the surface pay for a shadow lookup.
         if any(sum > vec3<f32>(0.0)) {
-            radiance += sum * visibility(gi, info.x, world, n);
+            // The group's penumbra is its first (brightest-keyed) member's.
+            let radius = u_lights.items[info.y].to_light.w;
+            radiance += sum * visibility(gi, info.x, world, n, radius);
         }
     }
     return vec4<f32>(radiance * u_globals.params.x, 1.0);

@@ -51,6 +51,32 @@ fn light(id: u32, to_light: Vec3, e: f32) -> Light {
     }
 }
 
+/// Renders and returns the HDR radiance (red channel) at the pixels of world points, with no
+/// check of the neighbourhood (for points inside a penumbra).
+fn raw_radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
+    let gpu = Gpu::new(Gpu::backends(None)).expect("a graphics adapter (CI installs lavapipe)");
+    let options = Options {
+        exposure: Some(1.0),
+        overlay: false,
+        pcf_taps: 4,
+        ..Options::optimised()
+    };
+    let mut r = Renderer::new(&gpu, &scene(), SIZE, OUTPUT_FORMAT, options);
+    r.set_lights(lights);
+    r.render_headless(&camera(), &Status::default());
+    let hdr = r.read_hdr();
+    let view_proj = camera().view_proj(SIZE.0 as f32 / SIZE.1 as f32);
+    points
+        .iter()
+        .map(|&p| {
+            let ndc = view_proj.project_point3(p);
+            let x = ((ndc.x + 1.0) * 0.5 * SIZE.0 as f32) as usize;
+            let y = ((1.0 - ndc.y) * 0.5 * SIZE.1 as f32) as usize;
+            hdr[y * SIZE.0 as usize + x][0]
+        })
+        .collect()
+}
+
 /// Renders and returns the HDR radiance (red channel) at the pixels of world points.
 fn radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
     let gpu = Gpu::new(Gpu::backends(None)).expect("a graphics adapter (CI installs lavapipe)");
@@ -137,4 +163,31 @@ fn a_second_light_at_60_degrees_gives_the_ratios_of_the_diffuse_formula() {
     // The ratios: (E2/2) / (E1 + E2/2) = 0.25 and E1 / (E1 + E2/2) = 0.75.
     assert!(close(l[0] / l[2], 0.25), "under/open = {}", l[0] / l[2]);
     assert!(close(l[1] / l[2], 0.75), "beside/open = {}", l[1] / l[2]);
+}
+
+/// ALGORITHMS.md §12 in the viewer: a light with an angular radius casts a penumbra about the
+/// slab's edge (1 unit above the ground, so half a width of about tan(radius)), a point light a
+/// hard edge; deep in the shadow and far in the open both stay as the formula says.
+#[test]
+fn a_light_with_an_angular_radius_casts_a_penumbra() {
+    let e = 3.0;
+    let open = ALBEDO / PI * e;
+    // Across the slab's edge at x = 0.5, on the z = 0 line.
+    let xs = [0.2f32, 0.44, 0.56, 0.9];
+    let points: Vec<Vec3> = xs.iter().map(|&x| Vec3::new(x, 0.0, 0.0)).collect();
+    let hard = raw_radiance_at(&[light(0, Vec3::Y, e)], &points);
+    let mut soft_light = light(0, Vec3::Y, e);
+    soft_light.angular_radius = 8f32.to_radians();
+    let soft = raw_radiance_at(&[soft_light], &points);
+    println!("hard {hard:?} soft {soft:?} open {open}");
+    // Far from the edge: black under, open outside, for both.
+    for v in [&hard, &soft] {
+        assert!(v[0] <= 0.02 * open, "deep shadow {}", v[0]);
+        assert!((v[3] - open).abs() <= 0.02 * open, "open {}", v[3]);
+    }
+    // Near the edge (0.06 from it, inside the soft light's penumbra of about ±0.14): the point
+    // light's shadow is hard, the disc light's partial on both sides.
+    assert!(hard[1] <= 0.05 * open && hard[2] >= 0.95 * open, "hard edge {hard:?}");
+    assert!(soft[1] >= 0.1 * open, "inside the penumbra, under the slab: {}", soft[1]);
+    assert!(soft[2] <= 0.9 * open, "inside the penumbra, outside the slab: {}", soft[2]);
 }

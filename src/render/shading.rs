@@ -69,7 +69,8 @@ impl LightRaw {
         let [x, y, z] = l.to_light;
         let [r, g, b] = l.irradiance;
         LightRaw {
-            to_light: [x, y, z, 0.0],
+            // w: the light's angular radius (ALGORITHMS.md §12), for its penumbra.
+            to_light: [x, y, z, l.angular_radius.max(0.0)],
             irradiance: [r, g, b, 0.0],
         }
     }
