@@ -94,6 +94,25 @@ fn median_cut_method_runs_from_the_cli() {
     assert_valid(&lightset_validator(), &doc);
     assert_eq!(doc["method"], "median-cut");
     assert_eq!(doc["lights"].as_array().unwrap().len(), 16);
+    // The baselines of ALGORITHMS.md §10 from the CLI too; k-means is refused for a stream.
+    for (method, n) in [("vmlps", 24), ("k-means", 16)] {
+        let out = vemlight(&[
+            "lights",
+            data_path("studio.exr").to_str().unwrap(),
+            "--method",
+            method,
+            "-n",
+            &n.to_string(),
+        ]);
+        let doc = stdout_json(&out);
+        assert_valid(&lightset_validator(), &doc);
+        assert_eq!(doc["method"], method);
+        assert_eq!(doc["lights"].as_array().unwrap().len(), n);
+    }
+    assert_fails_with(
+        &vemlight(&["serve", "--method", "k-means", "--bind", "127.0.0.1:0"]),
+        "single maps",
+    );
 }
 
 /// glTF: one directional light and node per light, node rotation maps −Z onto −to_light.

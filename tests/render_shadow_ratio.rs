@@ -51,9 +51,8 @@ fn light(id: u32, to_light: Vec3, e: f32) -> Light {
     }
 }
 
-/// Renders and returns the HDR radiance (red channel) at the pixels of world points, with no
-/// check of the neighbourhood (for points inside a penumbra).
-fn raw_radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
+/// Renders the lights and returns the HDR radiance (red channel) and the pixel of each world point.
+fn render(lights: &[Light], points: &[Vec3]) -> (Vec<[f32; 4]>, Vec<(usize, usize)>) {
     let gpu = Gpu::new(Gpu::backends(None)).expect("a graphics adapter (CI installs lavapipe)");
     let options = Options {
         exposure: Some(1.0),
@@ -64,39 +63,36 @@ fn raw_radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
     let mut r = Renderer::new(&gpu, &scene(), SIZE, OUTPUT_FORMAT, options);
     r.set_lights(lights);
     r.render_headless(&camera(), &Status::default());
-    let hdr = r.read_hdr();
     let view_proj = camera().view_proj(SIZE.0 as f32 / SIZE.1 as f32);
-    points
+    let pixels = points
         .iter()
         .map(|&p| {
             let ndc = view_proj.project_point3(p);
             let x = ((ndc.x + 1.0) * 0.5 * SIZE.0 as f32) as usize;
             let y = ((1.0 - ndc.y) * 0.5 * SIZE.1 as f32) as usize;
-            hdr[y * SIZE.0 as usize + x][0]
+            (x, y)
         })
+        .collect();
+    (r.read_hdr(), pixels)
+}
+
+/// The radiance at the pixels of world points, with no check of the neighbourhood (for points
+/// inside a penumbra).
+fn raw_radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
+    let (hdr, pixels) = render(lights, points);
+    pixels
+        .iter()
+        .map(|&(x, y)| hdr[y * SIZE.0 as usize + x][0])
         .collect()
 }
 
 /// Renders and returns the HDR radiance (red channel) at the pixels of world points.
 fn radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
-    let gpu = Gpu::new(Gpu::backends(None)).expect("a graphics adapter (CI installs lavapipe)");
-    let options = Options {
-        exposure: Some(1.0),
-        overlay: false,
-        pcf_taps: 4,
-        ..Options::optimised()
-    };
-    let mut r = Renderer::new(&gpu, &scene(), SIZE, OUTPUT_FORMAT, options);
-    r.set_lights(lights);
-    r.render_headless(&camera(), &Status::default());
-    let hdr = r.read_hdr();
-    let view_proj = camera().view_proj(SIZE.0 as f32 / SIZE.1 as f32);
-    points
+    let (hdr, pixels) = render(lights, points);
+    pixels
         .iter()
-        .map(|&p| {
-            let ndc = view_proj.project_point3(p);
-            let x = ((ndc.x + 1.0) * 0.5 * SIZE.0 as f32) as usize;
-            let y = ((1.0 - ndc.y) * 0.5 * SIZE.1 as f32) as usize;
+        .zip(points)
+        .map(|(&(x, y), p)| {
             // The 3 × 3 pixels around must agree (the point is not on an edge).
             let at = |x: usize, y: usize| hdr[y * SIZE.0 as usize + x][0];
             let c = at(x, y);
@@ -187,7 +183,18 @@ fn a_light_with_an_angular_radius_casts_a_penumbra() {
     }
     // Near the edge (0.06 from it, inside the soft light's penumbra of about ±0.14): the point
     // light's shadow is hard, the disc light's partial on both sides.
-    assert!(hard[1] <= 0.05 * open && hard[2] >= 0.95 * open, "hard edge {hard:?}");
-    assert!(soft[1] >= 0.1 * open, "inside the penumbra, under the slab: {}", soft[1]);
-    assert!(soft[2] <= 0.9 * open, "inside the penumbra, outside the slab: {}", soft[2]);
+    assert!(
+        hard[1] <= 0.05 * open && hard[2] >= 0.95 * open,
+        "hard edge {hard:?}"
+    );
+    assert!(
+        soft[1] >= 0.1 * open,
+        "inside the penumbra, under the slab: {}",
+        soft[1]
+    );
+    assert!(
+        soft[2] <= 0.9 * open,
+        "inside the penumbra, outside the slab: {}",
+        soft[2]
+    );
 }

@@ -2,6 +2,9 @@
 //! energy conserved, every light inside the domain, ids stable over a sequence for the ordered
 //! methods. The assertions are written here, independently of `eval::stability::violations`.
 
+mod common;
+
+use common::{MAPS, load};
 use vemlight::envmap::EnvMap;
 use vemlight::eval::scenes::angle_deg;
 use vemlight::eval::stability::{CaseKind, HARD_N, hard_cases, violations};
@@ -179,24 +182,16 @@ fn default_method_tracks_the_sun_across_the_seam_and_the_zenith() {
 }
 
 /// Issue 15: under a slow yaw (0.25°/frame) of every map in tests/data, the default's raw flicker
-/// ratio stays within a bound and below median cut's, per map (not in the median).
+/// ratio stays within a bound and below median cut's, per map (not in the median), and no light
+/// id moves more than 15° in a frame (the video mode's worst over 96 frames in `vemlight eval`
+/// is 12°; warping the points afresh each frame, 20–60°).
 #[test]
 fn default_flicker_is_bounded_on_every_map_under_slow_rotation() {
     use vemlight::eval::scenes::LatLongDirs;
     use vemlight::eval::temporal::{Sequence, run_sequence};
-    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data");
     let mut report = Vec::new();
-    for name in [
-        "sunrise.exr",
-        "interior.exr",
-        "night.exr",
-        "city.exr",
-        "studio.exr",
-        "overcast-plaza.exr",
-        "cumulus-sky-f16.exr",
-        "apartment-f16.exr",
-    ] {
-        let map = EnvMap::open(&root.join(name), None, 1 << 26).expect("map decodes");
+    for name in MAPS {
+        let map = load(name);
         let dirs = LatLongDirs::new(map.width, map.height);
         let step = 0.25f64.to_radians();
         let mut seq = Sequence {
@@ -213,8 +208,19 @@ fn default_flicker_is_bounded_on_every_map_under_slow_rotation() {
                 .flicker
         };
         let (v, mc) = (flicker(Method::Voronoi), flicker(Method::MedianCut));
-        report.push(format!("{name}: default {v:.3}, median cut {mc:.3}"));
-        assert!(v <= 1.5, "{name}: default raw flicker {v}");
+        let jump = rows
+            .iter()
+            .find(|r| r.method == Method::Voronoi.name() && r.filter == "none")
+            .expect("row")
+            .speed_max_deg;
+        report.push(format!(
+            "{name}: default {v:.3} (largest jump {jump:.1}°), median cut {mc:.3}"
+        ));
+        assert!(v <= 1.15, "{name}: default raw flicker {v}");
+        assert!(
+            jump <= 15.0,
+            "{name}: a light id jumped {jump}° in one frame"
+        );
         assert!(v < mc.max(1.05), "{name}: default {v} vs median cut {mc}");
     }
     eprintln!("{}", report.join("\n"));

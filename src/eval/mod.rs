@@ -285,9 +285,6 @@ fn rotations_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence
 
 /// The temporal sequences of issue 5, rendered on demand.
 fn sequences_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence<'a>> {
-    let dirs = std::rc::Rc::new(LatLongDirs::new(map.width, map.height));
-    let step = ROTATION_DEG_PER_FRAME.to_radians();
-    let (d1, d2) = (dirs.clone(), dirs.clone());
     let on_frame = frames / 2;
     let lamp = with_lamp(map, dir_from_elev_azim(25.0, -120.0), 2.0, 0.25);
     let mut sky = SyntheticSky::new(SyntheticConfig {
@@ -297,19 +294,8 @@ fn sequences_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence
         switch_light: None,
         ..SyntheticConfig::default()
     });
-    vec![
-        Sequence {
-            name: format!("{name}:yaw"),
-            description: format!("{name} rotated {ROTATION_DEG_PER_FRAME}°/frame about +Y"),
-            frames,
-            render: Box::new(move |t| d1.rotated(map, DQuat::from_rotation_y(step * t as f64))),
-        },
-        Sequence {
-            name: format!("{name}:pitch"),
-            description: format!("{name} rotated {ROTATION_DEG_PER_FRAME}°/frame about +X"),
-            frames,
-            render: Box::new(move |t| d2.rotated(map, DQuat::from_rotation_x(step * t as f64))),
-        },
+    let mut seqs = rotations_for(name, map, frames);
+    seqs.extend([
         Sequence {
             name: "sun-path".into(),
             description: "the synthetic sky (Hosek-Wilkie, clouds drifting 2°/s), sun moving 0.25°/frame at 30 frames/s".into(),
@@ -330,7 +316,8 @@ fn sequences_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence
             frames,
             render: Box::new(move |t| if t < on_frame { map.clone() } else { lamp.clone() }),
         },
-    ]
+    ]);
+    seqs
 }
 
 /// The accuracy table: median over maps at N = 16, 64, 256, and the targets of issue 5.

@@ -196,7 +196,6 @@ pub fn placements() -> Vec<Placement> {
                 exponent,
                 max_seeds_per_texel,
                 uniform_share,
-                blur: 0,
             });
         }
     }

@@ -268,11 +268,6 @@ pub struct Placement {
     /// dark region moves when the data change (its speed is ∝ 1/density), so a seed in a dark
     /// corner cannot swing across it between frames.
     pub uniform_share: f32,
-    /// Radius, in texels, of the box blur applied to the density before the warp (0: none). The
-    /// marginal/conditional warp is continuous in the data but not smooth: a lamp entering a row
-    /// turns that row's conditional CDF into a near step, and points slide across the row in a
-    /// frame. Blurred, a compact source enters a row over 2r + 1 texels of motion.
-    pub blur: usize,
 }
 
 impl Default for Placement {
@@ -281,7 +276,6 @@ impl Default for Placement {
             exponent: 0.625,
             max_seeds_per_texel: 0.5,
             uniform_share: 0.1,
-            blur: 0,
         }
     }
 }
@@ -289,34 +283,6 @@ impl Default for Placement {
 impl Placement {
     /// `density` = `luminance` reshaped for `n` seeds (see [`Placement`]).
     pub fn density(&self, luminance: &[f32], n: usize, density: &mut Vec<f32>) {
-        self.shape(luminance, n, density);
-    }
-
-    /// Box blur of radius `r` texels over the `side` × `side` square, separable, clamped at the
-    /// edges (each output the mean of the texels inside the square).
-    fn blur_square(d: &mut [f32], side: usize, r: usize, tmp: &mut Vec<f32>) {
-        if r == 0 || side == 0 {
-            return;
-        }
-        tmp.clear();
-        tmp.resize(d.len(), 0.0);
-        // Rows into tmp, then columns back into d, each with a running sum.
-        for j in 0..side {
-            let row = &d[j * side..(j + 1) * side];
-            let out = &mut tmp[j * side..(j + 1) * side];
-            blur_line(row, out, 1, r);
-        }
-        for i in 0..side {
-            let col: Vec<f32> = (0..side).map(|j| tmp[j * side + i]).collect();
-            let mut out = vec![0.0f32; side];
-            blur_line(&col, &mut out, 1, r);
-            for j in 0..side {
-                d[j * side + i] = out[j];
-            }
-        }
-    }
-
-    fn shape(&self, luminance: &[f32], n: usize, density: &mut Vec<f32>) {
         density.clear();
         let e = self.exponent;
         let clean = |y: f32| if y.is_finite() { y.max(0.0) } else { 0.0 };
@@ -347,13 +313,6 @@ impl Placement {
         } else {
             density.extend(luminance.iter().map(|&y| clean(y).powf(e)));
         }
-        if self.blur > 0 {
-            let side = (density.len() as f64).sqrt().round() as usize;
-            if side * side == density.len() {
-                let mut tmp = Vec::new();
-                Self::blur_square(density, side, self.blur, &mut tmp);
-            }
-        }
         if self.uniform_share > 0.0 && !density.is_empty() {
             let mean = density.iter().map(|&d| d as f64).sum::<f64>() / density.len() as f64;
             let add = (self.uniform_share as f64 * mean) as f32;
@@ -376,11 +335,29 @@ impl Placement {
         if total <= 0.0 || c * total / nf >= max as f64 {
             return; // no texel over the cap
         }
+        // The root is at most c·D/N (S ≤ D). Texels below a floor an eighth of that enter S(C)
+        // whole while C stays above the floor, so the Newton passes run over the few texels above
+        // it (the bright ones); should the root fall below the floor, every texel takes part.
+        let floor = (c * total / nf / 8.0) as f32;
+        let mut base = 0.0f64;
+        let mut bright: Vec<f32> = Vec::new();
+        for &d in density.iter() {
+            if d > floor {
+                bright.push(d);
+            } else {
+                base += d as f64;
+            }
+        }
         let mut cap = max as f64;
-        for _ in 0..32 {
-            let (mut s, mut above) = (0.0f64, 0usize);
+        for _ in 0..64 {
+            let (values, mut s) = if cap > floor as f64 {
+                (&bright[..], base)
+            } else {
+                (&density[..], 0.0)
+            };
+            let mut above = 0usize;
             let cf = cap as f32;
-            for &d in density.iter() {
+            for &d in values {
                 if d > cf {
                     above += 1;
                     s += cap;
@@ -423,6 +400,10 @@ struct CellAccum {
     core_lum: f64,
     core_moment: DVec3,
 }
+
+/// In video mode, a light whose core holds more than this share of its cell's energy is seeded
+/// at its core (see [`Extractor::set_video`]).
+pub const CORE_SEED_SHARE: f64 = 0.5;
 
 /// Texels of at least this fraction of their cell's peak luminance form the cell's core, whose
 /// spread is the light's angular radius: a shadow's penumbra comes from the bright core, and the
@@ -695,6 +676,10 @@ impl Extractor {
     }
 
     /// In video mode, keeps the default method's lights as the next frame's seeds.
+    /// A light whose cell's core (see [`CORE_FRACTION`]) holds most of its energy is seeded at the
+    /// core, not at the cell's centroid: a lamp then sits at its light's seed, where no other seed
+    /// can be nearer, instead of near a cell boundary that it may cross (the light's centroid
+    /// swinging by the cell's size in one frame).
     fn remember(&mut self, method: Method, image: &DomainImage, lights: &[Light]) {
         if self.video && method == Method::Voronoi {
             let seeds = self
@@ -702,7 +687,14 @@ impl Extractor {
                 .entry((lights.len(), image.domain, image.side))
                 .or_default();
             seeds.clear();
-            seeds.extend(lights.iter().map(|l| Vec3::from_array(l.to_light)));
+            seeds.extend(lights.iter().zip(&self.accum).map(|(l, a)| {
+                let centroid = Vec3::from_array(l.to_light);
+                if a.core_lum > CORE_SEED_SHARE * a.lum {
+                    a.core_moment.as_vec3().try_normalize().unwrap_or(centroid)
+                } else {
+                    centroid
+                }
+            }));
         }
     }
 
@@ -1267,15 +1259,102 @@ pub fn total_irradiance(lights: &[Light]) -> [f64; 3] {
     s
 }
 
-/// `out[i]` = the mean of `line[i − r ..= i + r]` (clamped to the line), by a running sum.
-fn blur_line(line: &[f32], out: &mut [f32], _stride: usize, r: usize) {
-    let n = line.len();
-    let mut prefix = vec![0.0f64; n + 1];
-    for i in 0..n {
-        prefix[i + 1] = prefix[i] + line[i] as f64;
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg(state: &mut u64) -> f32 {
+        *state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*state >> 40) as f32) / (1u64 << 24) as f32
     }
-    for i in 0..n {
-        let (a, b) = (i.saturating_sub(r), (i + r + 1).min(n));
-        out[i] = ((prefix[b] - prefix[a]) / (b - a) as f64) as f32;
+
+    /// A skewed density: mostly dim, a few texels 10⁴–10⁶ × brighter (a sun, lamps).
+    fn skewed(len: usize, seed: u64) -> Vec<f32> {
+        let mut s = seed;
+        (0..len)
+            .map(|_| {
+                let u = lcg(&mut s);
+                if u < 0.003 {
+                    1e4 + 1e6 * lcg(&mut s)
+                } else {
+                    0.1 + u
+                }
+            })
+            .collect()
+    }
+
+    /// The cap holds (no texel expects more than c of the N seeds, to rounding), texels under it
+    /// are untouched, and the level is the root of C = c·Σ min(d, C)/N: checked against bisection.
+    #[test]
+    fn the_capped_density_meets_its_cap_and_solves_the_water_level() {
+        for (seed, n) in [(1u64, 16usize), (2, 64), (3, 256), (4, 1024)] {
+            let lum = skewed(128 * 128, seed);
+            let p = Placement {
+                exponent: 1.0,
+                max_seeds_per_texel: 0.5,
+                uniform_share: 0.0,
+            };
+            let mut d = Vec::new();
+            p.density(&lum, n, &mut d);
+            let total: f64 = d.iter().map(|&v| v as f64).sum();
+            let cap = d.iter().copied().fold(0.0f32, f32::max) as f64;
+            assert!(
+                n as f64 * cap / total <= 0.5 * (1.0 + 1e-5),
+                "N={n}: {} seeds in the brightest texel",
+                n as f64 * cap / total
+            );
+            for (a, b) in lum.iter().zip(&d) {
+                assert!(*b == a.min(cap as f32), "N={n}: {a} → {b} with cap {cap}");
+            }
+            // Bisection on g(C) = c·S(C)/N − C.
+            let g =
+                |c: f64| 0.5 * lum.iter().map(|&v| (v as f64).min(c)).sum::<f64>() / n as f64 - c;
+            let (mut lo, mut hi) = (1e-9, 2e6);
+            for _ in 0..200 {
+                let mid = 0.5 * (lo + hi);
+                if g(mid) > 0.0 { lo = mid } else { hi = mid }
+            }
+            assert!(
+                (cap - lo).abs() <= 1e-4 * lo,
+                "N={n}: level {cap} vs bisection {lo}"
+            );
+        }
+    }
+
+    /// Exponents in eighths by square roots equal powf; the uniform share adds β × the mean.
+    #[test]
+    fn exponents_and_the_uniform_share_shape_the_density_as_stated() {
+        let lum = skewed(4096, 9);
+        for k in 1..=8 {
+            let e = k as f32 / 8.0;
+            let p = Placement {
+                exponent: e,
+                max_seeds_per_texel: 0.0,
+                uniform_share: 0.0,
+            };
+            let mut d = Vec::new();
+            p.density(&lum, 64, &mut d);
+            for (a, b) in lum.iter().zip(&d) {
+                let want = a.powf(e);
+                assert!(
+                    (b - want).abs() <= 1e-5 * want,
+                    "e = {e}: {a} → {b}, powf {want}"
+                );
+            }
+        }
+        let p = Placement {
+            exponent: 0.5,
+            max_seeds_per_texel: 0.0,
+            uniform_share: 0.25,
+        };
+        let mut d = Vec::new();
+        p.density(&lum, 64, &mut d);
+        let mean = lum.iter().map(|v| v.sqrt() as f64).sum::<f64>() / lum.len() as f64;
+        for (a, b) in lum.iter().zip(&d) {
+            let want = a.sqrt() as f64 + 0.25 * mean;
+            assert!((*b as f64 - want).abs() <= 1e-4 * want);
+        }
     }
 }
