@@ -674,3 +674,58 @@ fn a_disc_source_gives_a_light_of_its_radius() {
         );
     }
 }
+
+/// Video mode (`Extractor::set_video`): on a steady scene each frame takes one more Lloyd step from
+/// the last, so the lights settle (under half a degree a frame after 16 frames, and falling: Lloyd
+/// converges linearly) at an error no worse than a single frame's and near the k-means floor, with
+/// energy exact in every frame.
+#[test]
+fn video_mode_settles_on_a_steady_scene() {
+    for name in ["sunrise.exr", "studio.exr", "interior.exr"] {
+        let map = load(name);
+        let reference = IrradianceReference::from_map(&map, Domain::Sphere);
+        let o = opts(32, Domain::Sphere, Method::Voronoi);
+        let single = reference
+            .error(&Extractor::new().extract(&map, &o).lights)
+            .rel_rms;
+        let floor = reference
+            .error(
+                &Extractor::new()
+                    .extract(&map, &opts(32, Domain::Sphere, Method::KMeans))
+                    .lights,
+            )
+            .rel_rms;
+        let mut ex = Extractor::new();
+        ex.set_video(true);
+        let truth = map.integral(Domain::Sphere);
+        let mut prev: Option<Vec<vemlight::lights::Light>> = None;
+        let mut last_move = f64::INFINITY;
+        let mut err = f64::NAN;
+        for _ in 0..16 {
+            let lights = ex.extract(&map, &o).lights;
+            let sum = total_irradiance(&lights);
+            assert!(rel(sum[1], truth[1]) < 1e-4, "{name}: energy");
+            if let Some(p) = &prev {
+                last_move = p
+                    .iter()
+                    .zip(&lights)
+                    .map(|(a, b)| a.dir().angle_between(b.dir()).to_degrees())
+                    .fold(0.0, f64::max);
+            }
+            err = reference.error(&lights).rel_rms;
+            prev = Some(lights);
+        }
+        eprintln!(
+            "{name}: single frame {single:.5}, settled {err:.5}, k-means {floor:.5}, last move {last_move:.3}°"
+        );
+        assert!(last_move < 0.5, "{name}: still moving {last_move}°");
+        assert!(
+            err <= single * 1.02,
+            "{name}: settled {err} vs single frame {single}"
+        );
+        assert!(
+            err <= 1.25 * floor,
+            "{name}: settled {err} vs k-means {floor}"
+        );
+    }
+}

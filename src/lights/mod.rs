@@ -244,6 +244,8 @@ pub struct Extractor {
     /// Set by `warp_seeds` when a video stream's seeds came from a fresh warp: that frame takes
     /// [`VIDEO_START_STEPS`] Lloyd steps, so the stream starts near its steady state.
     fresh_start: bool,
+    /// Set by `warp_seeds` when the seeds are the previous frame's lights.
+    warm_seeds: bool,
 }
 
 /// Lloyd steps of the first frame of a video stream (see [`Extractor::set_video`]): the later
@@ -401,9 +403,8 @@ struct CellAccum {
     core_moment: DVec3,
 }
 
-/// In video mode, a light whose core holds more than this share of its cell's energy is seeded
-/// at its core (see [`Extractor::set_video`]).
-pub const CORE_SEED_SHARE: f64 = 0.5;
+/// Light counts (with their domain and side) whose last lights video mode keeps at most.
+const MAX_VIDEO_COUNTS: usize = 32;
 
 /// Texels of at least this fraction of their cell's peak luminance form the cell's core, whose
 /// spread is the light's angular radius: a shadow's penumbra comes from the bright core, and the
@@ -435,6 +436,7 @@ impl Default for Extractor {
             video: false,
             previous: HashMap::new(),
             fresh_start: false,
+            warm_seeds: false,
         }
     }
 }
@@ -475,16 +477,16 @@ impl Extractor {
         self.refine = steps.min(8);
     }
 
-    /// Video mode, for a stream of frames of one scene (the daemon, `vemlight view`, the temporal
-    /// evaluation): the default method seeds each frame with the previous frame's lights of the
-    /// same count instead of warping the fixed points afresh, so that each light follows what
-    /// its cell holds and moves only as far as that moves. Warping afresh, a lamp that slides
-    /// from one row of the warp's conditional CDFs to the next drags the points of that row across
-    /// it (the warp is continuous but far from smooth there): 20–60° jumps of one light id in one
-    /// frame on the lit interior under a 0.25°/frame rotation. With the previous lights as seeds
-    /// the Lloyd steps of every frame also carry on from where the last frame stopped, so a
-    /// steady scene converges to the k-means fixed point (ALGORITHMS.md §10). The first frame,
-    /// and any frame of another size or count, starts from the warp.
+    /// Video mode, for a stream of frames of one scene (the daemon, the temporal evaluation): the
+    /// default method seeds each frame with the previous frame's lights of the same count instead
+    /// of warping the fixed points afresh, and takes one full-resolution Lloyd step from them, so
+    /// that each light follows what its cell holds and moves only as far as that moves. Warping
+    /// afresh, a lamp that slides from one row of the warp's conditional CDFs to the next drags
+    /// the points of that row across it (the warp is continuous but far from smooth there): 20–60°
+    /// jumps of one light id in one frame on the lit interior under a 0.25°/frame rotation. A
+    /// steady scene converges toward a k-means fixed point (ALGORITHMS.md §10), one step a frame.
+    /// The first frame, and any frame of another size or count, starts from the warp and takes
+    /// [`VIDEO_START_STEPS`] Lloyd steps.
     pub fn set_video(&mut self, video: bool) {
         self.video = video;
         if !video {
@@ -676,25 +678,22 @@ impl Extractor {
     }
 
     /// In video mode, keeps the default method's lights as the next frame's seeds.
-    /// A light whose cell's core (see [`CORE_FRACTION`]) holds most of its energy is seeded at the
-    /// core, not at the cell's centroid: a lamp then sits at its light's seed, where no other seed
-    /// can be nearer, instead of near a cell boundary that it may cross (the light's centroid
-    /// swinging by the cell's size in one frame).
     fn remember(&mut self, method: Method, image: &DomainImage, lights: &[Light]) {
         if self.video && method == Method::Voronoi {
+            // Counts no longer asked for keep their seeds; past a bound, all start afresh.
+            if self.previous.len() >= MAX_VIDEO_COUNTS
+                && !self
+                    .previous
+                    .contains_key(&(lights.len(), image.domain, image.side))
+            {
+                self.previous.clear();
+            }
             let seeds = self
                 .previous
                 .entry((lights.len(), image.domain, image.side))
                 .or_default();
             seeds.clear();
-            seeds.extend(lights.iter().zip(&self.accum).map(|(l, a)| {
-                let centroid = Vec3::from_array(l.to_light);
-                if a.core_lum > CORE_SEED_SHARE * a.lum {
-                    a.core_moment.as_vec3().try_normalize().unwrap_or(centroid)
-                } else {
-                    centroid
-                }
-            }));
+            seeds.extend(lights.iter().map(|l| Vec3::from_array(l.to_light)));
         }
     }
 
@@ -714,9 +713,11 @@ impl Extractor {
             self.seeds.clear();
             self.seeds.extend_from_slice(prev);
             self.fresh_start = false;
+            self.warm_seeds = true;
             return;
         }
         self.fresh_start = self.video && method == Method::Voronoi;
+        self.warm_seeds = false;
         if method == Method::Voronoi {
             self.placement
                 .density(&image.luminance, n, &mut self.density);
@@ -734,8 +735,14 @@ impl Extractor {
 
     /// Default method: spherical Voronoi cells of the seeds, lights at luminance-weighted centroids.
     fn assign_spherical(&mut self, image: &DomainImage) -> Vec<Light> {
+        // A stream's later frames take one full-resolution Lloyd step each, from the last frame's
+        // lights (the final assignment below): the half-resolution steps have a fixed point of
+        // their own, and alternating the two kept the lights of a static scene moving 0.5–1.5° a
+        // frame without end.
         let steps = if self.fresh_start {
             self.refine.max(VIDEO_START_STEPS)
+        } else if self.video && self.warm_seeds {
+            0
         } else {
             self.refine
         };
