@@ -729,3 +729,58 @@ fn video_mode_settles_on_a_steady_scene() {
         );
     }
 }
+
+/// The baselines of ALGORITHMS.md §10. Converged k-means is the floor of the diffuse error: at
+/// most median cut's and VMLPS's on every map at N = 16 and 64; and VMLPS's variance-minimising
+/// cut puts two lights on two separated lamps where it matters.
+#[test]
+fn k_means_is_the_floor_and_vmlps_cuts_between_sources() {
+    let mut ex = Extractor::new();
+    for name in MAPS {
+        let map = load(name);
+        let reference = IrradianceReference::from_map(&map, Domain::Sphere);
+        for n in [16, 64] {
+            let err = |ex: &mut Extractor, m| {
+                reference
+                    .error(&ex.extract(&map, &opts(n, Domain::Sphere, m)).lights)
+                    .rel_rms
+            };
+            let k = err(&mut ex, Method::KMeans);
+            let mc = err(&mut ex, Method::MedianCut);
+            let vm = err(&mut ex, Method::Vmlps);
+            assert!(
+                k <= mc && k <= vm,
+                "{name} N={n}: k-means {k}, median cut {mc}, vmlps {vm}"
+            );
+        }
+    }
+    // Two 2° lamps 90° apart on a dim sky: two VMLPS lights, one on each lamp.
+    let (w, h) = (512, 256);
+    let lamps = [
+        DVec3::new(0.6, 0.5, -0.6).normalize(),
+        DVec3::new(-0.6, 0.5, -0.6).normalize(),
+    ];
+    let mut pixels = vec![[0.01f32; 3]; w * h];
+    for j in 0..h {
+        for i in 0..w {
+            let (d, _) = Projection::LatLong.pixel(i, j, w, h).unwrap();
+            if lamps.iter().any(|l| d.dot(*l) >= 2f64.to_radians().cos()) {
+                pixels[j * w + i] = [500.0; 3];
+            }
+        }
+    }
+    let map = EnvMap::from_pixels(w, h, pixels, Projection::LatLong).unwrap();
+    let lights = ex
+        .extract(&map, &opts(2, Domain::Sphere, Method::Vmlps))
+        .lights;
+    for lamp in lamps {
+        let nearest = lights
+            .iter()
+            .map(|l| l.dir().angle_between(lamp).to_degrees())
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            nearest < 3.0,
+            "no VMLPS light within 3° of the lamp at {lamp:?}: {lights:?}"
+        );
+    }
+}

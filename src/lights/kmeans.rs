@@ -102,11 +102,7 @@ impl KMeans {
     /// Lloyd iterations from the seeds until no centre moves: `assign` gives the lights of one
     /// nearest-centre assignment (the default method's own pass), whose directions are the next
     /// centres.
-    pub fn converge(
-        &mut self,
-        _image: &DomainImage,
-        mut assign: impl FnMut(&[Vec3]) -> Vec<Light>,
-    ) -> Vec<Light> {
+    pub fn converge(&mut self, mut assign: impl FnMut(&[Vec3]) -> Vec<Light>) -> Vec<Light> {
         let mut lights = assign(&self.centres);
         for _ in 1..MAX_ITERATIONS {
             let mut moved = 0.0f32;

@@ -656,7 +656,7 @@ impl Extractor {
             Method::KMeans => {
                 let mut km = std::mem::take(&mut self.kmeans);
                 km.seed(image, n);
-                let lights = km.converge(image, |seeds| {
+                let lights = km.converge(|seeds| {
                     self.seeds.clear();
                     self.seeds.extend_from_slice(seeds);
                     self.assign_spherical_once(image, false)
