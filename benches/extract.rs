@@ -24,6 +24,7 @@ fn extraction(c: &mut Criterion) {
     let mut group = c.benchmark_group("extract-256");
     for case in standard_cases(&map, 256) {
         let mut ex = Extractor::new();
+        ex.set_video(case.video);
         ex.extract(&case.map, &case.opts); // build the cached tables outside the timing
         group.bench_function(&case.name, |b| {
             b.iter(|| black_box(ex.extract(black_box(&case.map), &case.opts)))

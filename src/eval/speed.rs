@@ -11,6 +11,8 @@ pub struct Case {
     pub name: String,
     pub map: EnvMap,
     pub opts: ExtractOptions,
+    /// Run the extractor in video mode (`Extractor::set_video`), as the daemon does.
+    pub video: bool,
 }
 
 /// Median time of one case, in seconds per frame.
@@ -54,8 +56,21 @@ pub fn standard_cases(latlong: &EnvMap, lights: usize) -> Vec<Case> {
                     method,
                     side: None,
                 },
+                video: false,
             });
         }
+        // The default as a stream runs it: one Lloyd step a frame from the last frame's lights.
+        cases.push(Case {
+            name: format!("{label} -> {lights} lights, voronoi stream"),
+            map: map.clone(),
+            opts: ExtractOptions {
+                lights,
+                domain,
+                method: Method::Voronoi,
+                side: None,
+            },
+            video: true,
+        });
     }
     cases
 }
@@ -66,6 +81,7 @@ pub fn run(cases: &[Case], rounds: usize, per_round: usize) -> Vec<Timing> {
     // One extractor per case, warmed up, so table building is not timed.
     let mut extractors: Vec<Extractor> = cases.iter().map(|_| Extractor::new()).collect();
     for (c, ex) in cases.iter().zip(&mut extractors) {
+        ex.set_video(c.video);
         ex.extract(&c.map, &c.opts);
     }
     let mut samples: Vec<Vec<f64>> = vec![Vec::with_capacity(rounds * per_round); cases.len()];
