@@ -1262,6 +1262,8 @@ async fn frames_streamed_by_rows_give_the_lights_of_the_whole_frame() {
     let hub = Hub::new(64, 16, "pipe");
     let cfg = PipelineConfig {
         filter: vemlight::temporal::FilterSpec::none(),
+        // Each frame as the CLI computes it: this test is about the resampling by rows.
+        video: false,
         ..PipelineConfig::default()
     };
     pipeline::spawn(Box::new(source), hub.clone(), cfg).unwrap();

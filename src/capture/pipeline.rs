@@ -36,6 +36,9 @@ pub struct PipelineConfig {
     pub threads: usize,
     /// Extra Lloyd steps of the voronoi method (see `Extractor::set_refine`).
     pub refine: usize,
+    /// Each frame's lights start from the last frame's (`Extractor::set_video`; on by default,
+    /// off to get exactly what `vemlight lights` gives for each frame).
+    pub video: bool,
 }
 
 impl Default for PipelineConfig {
@@ -49,6 +52,7 @@ impl Default for PipelineConfig {
             max_light_counts: 16,
             threads: 1,
             refine: crate::lights::DEFAULT_REFINE,
+            video: true,
         }
     }
 }
@@ -456,7 +460,7 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
     };
     p.extractor.set_refine(cfg.refine);
     // One camera's frames: each frame's lights start from the last frame's.
-    p.extractor.set_video(true);
+    p.extractor.set_video(cfg.video);
     // The newest processed frame (its image stays in the extractor).
     let mut last: Option<LastFrame> = None;
     loop {
