@@ -10,6 +10,7 @@
 
 use crate::envmap::EnvMap;
 use crate::lights::Light;
+use crate::lights::error::relative_error;
 use glam::DVec3;
 
 /// Rays per light for the visibility averaged over its disc.
@@ -288,16 +289,7 @@ impl ShadowReference {
 
     /// Relative RMS of a light set's shadowed irradiance against the reference.
     pub fn error(&self, scene: &ShadowScene, lights: &[Light]) -> f64 {
-        let est = lights_irradiance(scene, lights);
-        let (mut num, mut den) = (0.0, 0.0);
-        for (e, t) in est.iter().zip(&self.truth) {
-            num += (e - t) * (e - t);
-            den += t * t;
-        }
-        if den <= 0.0 {
-            return if num <= 0.0 { 0.0 } else { f64::INFINITY };
-        }
-        (num / den).sqrt()
+        relative_error(&lights_irradiance(scene, lights), &self.truth).rel_rms
     }
 
     pub fn truth(&self) -> &[f64] {

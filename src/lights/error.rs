@@ -152,7 +152,7 @@ pub fn map_emitters(map: &EnvMap, domain: crate::sampling::Domain) -> Vec<(Vec3,
 }
 
 /// √(Σ(e − t)²)/√(Σt²) and max|e − t| / RMS(t); a zero truth is matched only by a zero estimate.
-fn relative_error(estimate: &[f64], truth: &[f64]) -> DiffuseError {
+pub fn relative_error(estimate: &[f64], truth: &[f64]) -> DiffuseError {
     debug_assert_eq!(estimate.len(), truth.len());
     let mut num = 0.0;
     let mut den = 0.0;

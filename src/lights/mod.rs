@@ -241,11 +241,20 @@ pub struct Extractor {
     /// Lloyd steps from the previous frame's lights of the same count, domain and side.
     video: bool,
     previous: HashMap<(usize, Domain, usize), Vec<Vec3>>,
-    /// Set by `warp_seeds` when a video stream's seeds came from a fresh warp: that frame takes
-    /// [`VIDEO_START_STEPS`] Lloyd steps, so the stream starts near its steady state.
-    fresh_start: bool,
-    /// Set by `warp_seeds` when the seeds are the previous frame's lights.
-    warm_seeds: bool,
+    /// Where `warp_seeds` took the current seeds from (it decides the Lloyd steps).
+    seed_origin: SeedOrigin,
+}
+
+/// Where a frame's seeds came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum SeedOrigin {
+    /// The warp of the fixed points (a single map, or a baseline): `refine` Lloyd steps.
+    Warp,
+    /// The warp, as the first frame of a video stream: [`VIDEO_START_STEPS`] steps, so the stream
+    /// starts near its steady state.
+    StreamStart,
+    /// The previous frame's lights (video mode): one full-resolution step.
+    LastFrame,
 }
 
 /// Lloyd steps of the first frame of a video stream (see [`Extractor::set_video`]): the later
@@ -403,6 +412,19 @@ struct CellAccum {
     core_moment: DVec3,
 }
 
+impl CellAccum {
+    /// The cell's k-means energy P − |M| (ALGORITHMS.md §10): what one light standing for it
+    /// costs, and so where a light without energy helps most.
+    fn spread(&self) -> f64 {
+        self.lum - self.weighted_dir.length()
+    }
+
+    /// Whether the cell could spare a texel to a light without energy.
+    fn can_donate(&self) -> bool {
+        self.lum > 0.0 && self.texels >= 2
+    }
+}
+
 /// Light counts (with their domain and side) whose last lights video mode keeps at most.
 const MAX_VIDEO_COUNTS: usize = 32;
 
@@ -435,8 +457,7 @@ impl Default for Extractor {
             vmlps: Default::default(),
             video: false,
             previous: HashMap::new(),
-            fresh_start: false,
-            warm_seeds: false,
+            seed_origin: SeedOrigin::Warp,
         }
     }
 }
@@ -533,12 +554,7 @@ impl Extractor {
                 self.warp_seeds(map, &image, opts.method, n);
                 timings.warp_s = t.elapsed().as_secs_f64();
                 let t = Instant::now();
-                let l = if opts.method == Method::Paper {
-                    self.assign_paper(&image)
-                } else {
-                    self.assign_spherical(&image)
-                };
-                self.remember(opts.method, &image, &l);
+                let l = self.assign_seeds(&image, opts.method);
                 timings.assign_s = t.elapsed().as_secs_f64();
                 l
             }
@@ -616,11 +632,7 @@ impl Extractor {
                     Method::Paper | Method::InverseCdf => {
                         self.seeds.clear();
                         self.seeds.extend_from_slice(&all_seeds[..n]);
-                        if method == Method::Paper {
-                            self.assign_paper(&image)
-                        } else {
-                            self.assign_spherical(&image)
-                        }
+                        self.assign_seeds(&image, method)
                     }
                     _ => self.lights_for(map, &image, method, n),
                 };
@@ -666,15 +678,22 @@ impl Extractor {
             }
             Method::Voronoi | Method::Paper | Method::InverseCdf => {
                 self.warp_seeds(map, image, method, n);
-                let lights = if method == Method::Paper {
-                    self.assign_paper(image)
-                } else {
-                    self.assign_spherical(image)
-                };
-                self.remember(method, image, &lights);
-                lights
+                self.assign_seeds(image, method)
             }
         }
+    }
+
+    /// Lights from the seeds [`warp_seeds`](Self::warp_seeds) left: the paper variant's planar
+    /// cells, or the spherical cells of the default and the inverse CDF; in video mode the
+    /// default's lights are kept as the next frame's seeds.
+    fn assign_seeds(&mut self, image: &DomainImage, method: Method) -> Vec<Light> {
+        let lights = if method == Method::Paper {
+            self.assign_paper(image)
+        } else {
+            self.assign_spherical(image)
+        };
+        self.remember(method, image, &lights);
+        lights
     }
 
     /// In video mode, keeps the default method's lights as the next frame's seeds.
@@ -699,8 +718,11 @@ impl Extractor {
 
     /// Builds the warp over the luminance and pushes the first `n` progressive points through it:
     /// the continuous warp of the domain square (ALGORITHMS.md §2–3), or for
-    /// [`Method::InverseCdf`] the discontinuous one of the lat-long map.
+    /// [`Method::InverseCdf`] the discontinuous one of the lat-long map. In video mode the default
+    /// takes the previous frame's lights instead, when it has them.
     fn warp_seeds(&mut self, map: &EnvMap, image: &DomainImage, method: Method, n: usize) {
+        // Set for every method, so that no origin is left over from another method's call.
+        self.seed_origin = SeedOrigin::Warp;
         let points = &progressive_points()[..n];
         if method == Method::InverseCdf {
             self.inverse_cdf.seeds(map, image, points, &mut self.seeds);
@@ -712,12 +734,14 @@ impl Extractor {
         {
             self.seeds.clear();
             self.seeds.extend_from_slice(prev);
-            self.fresh_start = false;
-            self.warm_seeds = true;
+            self.seed_origin = SeedOrigin::LastFrame;
             return;
         }
-        self.fresh_start = self.video && method == Method::Voronoi;
-        self.warm_seeds = false;
+        self.seed_origin = if self.video && method == Method::Voronoi {
+            SeedOrigin::StreamStart
+        } else {
+            SeedOrigin::Warp
+        };
         if method == Method::Voronoi {
             self.placement
                 .density(&image.luminance, n, &mut self.density);
@@ -739,12 +763,10 @@ impl Extractor {
         // lights (the final assignment below): the half-resolution steps have a fixed point of
         // their own, and alternating the two kept the lights of a static scene moving 0.5–1.5° a
         // frame without end.
-        let steps = if self.fresh_start {
-            self.refine.max(VIDEO_START_STEPS)
-        } else if self.video && self.warm_seeds {
-            0
-        } else {
-            self.refine
+        let steps = match self.seed_origin {
+            SeedOrigin::Warp => self.refine,
+            SeedOrigin::StreamStart => self.refine.max(VIDEO_START_STEPS),
+            SeedOrigin::LastFrame => 0,
         };
         if steps == 0 {
             let lights = self.assign_spherical_once(image, false);
@@ -792,48 +814,22 @@ impl Extractor {
             if dead.is_empty() {
                 break;
             }
-            let mut donors: Vec<(f64, usize)> = self
-                .accum
-                .iter()
-                .enumerate()
-                .filter(|(_, a)| a.lum > 0.0 && a.texels >= 2)
-                .map(|(k, a)| (a.lum - a.weighted_dir.length(), k))
+            let mut donors: Vec<usize> = (0..self.accum.len())
+                .filter(|&k| self.accum[k].can_donate())
                 .collect();
             if donors.is_empty() {
                 break;
             }
-            donors.sort_by(|a, b| b.0.total_cmp(&a.0));
-            let pairs: Vec<(usize, usize)> = dead
-                .iter()
-                .copied()
-                .zip(donors.iter().map(|d| d.1))
-                .collect();
-            let mut farthest = vec![(0.0f32, u32::MAX); lights.len()];
-            let mut is_donor = vec![false; lights.len()];
-            for &(_, k) in &pairs {
-                is_donor[k] = true;
-            }
-            for (t, &k) in self.owner.iter().enumerate() {
-                let k = k as usize;
-                let y = image.luminance[t];
-                if !is_donor[k] || y <= 0.0 {
-                    continue;
-                }
-                let m = Vec3::from_array(image.moment[t]);
-                let c = Vec3::from_array(lights[k].to_light);
-                let score = y - m.dot(c);
-                if score > farthest[k].0 || farthest[k].1 == u32::MAX {
-                    farthest[k] = (score, t as u32);
-                }
-            }
+            donors.sort_by(|&a, &b| self.accum[b].spread().total_cmp(&self.accum[a].spread()));
+            donors.truncate(dead.len());
+            let farthest = self.farthest_lit_texels(image, &donors);
             let mut moved = false;
             for (k, l) in lights.iter().enumerate() {
                 self.seeds[k] = Vec3::from_array(l.to_light);
             }
-            for &(d, k) in &pairs {
-                let t = farthest[k].1;
-                if t != u32::MAX
-                    && let Some(dir) = Vec3::from_array(image.moment[t as usize]).try_normalize()
+            for (&d, far) in dead.iter().zip(&farthest) {
+                if let Some((t, _)) = *far
+                    && let Some(dir) = Vec3::from_array(image.moment[t]).try_normalize()
                 {
                     self.seeds[d] = dir;
                     moved = true;
@@ -847,6 +843,42 @@ impl Extractor {
         self.steal_for_dead(image, lights)
     }
 
+    /// For each cell of `donors`, its lit texel farthest from the cell's centroid (luminance ×
+    /// (1 − cos), from the texels' moments) and its count of lit texels, by one pass over the
+    /// owners of the last full-resolution assignment; `None` for a cell with no lit texel.
+    fn farthest_lit_texels(
+        &self,
+        image: &DomainImage,
+        donors: &[usize],
+    ) -> Vec<Option<(usize, usize)>> {
+        let mut slot = vec![usize::MAX; self.accum.len()];
+        for (i, &k) in donors.iter().enumerate() {
+            slot[k] = i;
+        }
+        let centres: Vec<DVec3> = donors
+            .iter()
+            .map(|&k| self.accum[k].weighted_dir.normalize_or_zero())
+            .collect();
+        let mut best: Vec<Option<(f64, usize)>> = vec![None; donors.len()];
+        let mut lit = vec![0usize; donors.len()];
+        for (t, &k) in self.owner.iter().enumerate() {
+            let i = slot[k as usize];
+            let y = image.luminance[t] as f64;
+            if i == usize::MAX || y <= 0.0 {
+                continue;
+            }
+            lit[i] += 1;
+            let score = y - Vec3::from_array(image.moment[t]).as_dvec3().dot(centres[i]);
+            if best[i].is_none_or(|b| score > b.0) {
+                best[i] = Some((score, t));
+            }
+        }
+        best.iter()
+            .zip(&lit)
+            .map(|(b, &n)| b.map(|(_, t)| (t, n)))
+            .collect()
+    }
+
     /// The last resort of [`repair_dead`](Self::repair_dead), for a light still without energy
     /// (its new seed lost every texel to a nearer one): it takes the farthest lit texel of the
     /// cell with the most k-means energy outright, so every light carries energy while the map
@@ -855,29 +887,13 @@ impl Extractor {
         let mut changed = false;
         while let Some(dead) = (0..self.accum.len()).find(|&k| self.accum[k].lum <= 0.0) {
             let Some(donor) = (0..self.accum.len())
-                .filter(|&k| self.accum[k].lum > 0.0 && self.accum[k].texels >= 2)
-                .max_by(|&a, &b| {
-                    let e = |k: usize| self.accum[k].lum - self.accum[k].weighted_dir.length();
-                    e(a).total_cmp(&e(b))
-                })
+                .filter(|&k| self.accum[k].can_donate())
+                .max_by(|&a, &b| self.accum[a].spread().total_cmp(&self.accum[b].spread()))
             else {
                 break;
             };
-            let c = self.accum[donor].weighted_dir.normalize_or_zero();
-            let mut best: Option<(f64, usize)> = None;
-            let mut lit = 0;
-            for (t, &k) in self.owner.iter().enumerate() {
-                let y = image.luminance[t] as f64;
-                if k as usize != donor || y <= 0.0 {
-                    continue;
-                }
-                lit += 1;
-                let score = y - Vec3::from_array(image.moment[t]).as_dvec3().dot(c);
-                if best.is_none_or(|b| score > b.0) {
-                    best = Some((score, t));
-                }
-            }
-            let Some((_, t)) = best.filter(|_| lit >= 2) else {
+            let Some((t, _)) = self.farthest_lit_texels(image, &[donor])[0].filter(|f| f.1 >= 2)
+            else {
                 // The donor's texels are one lit texel and unlit ones: it cannot spare any.
                 self.accum[donor].texels = 1;
                 continue;
