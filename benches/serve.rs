@@ -22,10 +22,10 @@ use std::time::{Duration, Instant};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use vemlight::capture::files::FileSource;
-use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
 use vemlight::capture::stdin::{RawPixel, RawSource};
 use vemlight::capture::synthetic::{SyntheticConfig, SyntheticSky, SyntheticSource};
 use vemlight::capture::{FrameSource, pace};
+use vemlight::daemon::{self, Hub, PipelineConfig};
 use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use vemlight::eval::speed::median;
 use vemlight::lights::{Extractor, Method};
@@ -96,7 +96,7 @@ async fn start_server(
         }
     };
     let hub = Hub::new(64, 16, &source.describe());
-    pipeline::spawn(source, hub.clone(), cfg).unwrap();
+    daemon::spawn(source, hub.clone(), cfg).unwrap();
     let state = AppState::new(
         hub.clone(),
         None,

@@ -3,7 +3,7 @@
 //! Input: the bytes of an OpenEXR or Radiance HDR file (or raw frames from a capture source).
 //! Output: an [`EnvMap`] — linear RGB f32 pixels with a [`Projection`], every pixel finite and
 //! non-negative (bad pixels are clamped to 0 and counted, DESIGN.md). This is the first stage of the
-//! DESIGN.md pipeline; `sampling::domain` resamples it into the equal-area square.
+//! DESIGN.md pipeline; `sampling::resample` resamples it into the equal-area square.
 
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -52,7 +52,7 @@ pub enum Projection {
         /// Image circle radius in pixels; `None` = half the shorter side.
         radius: Option<f64>,
     },
-    /// An already-resampled HDS03 hemisphere square (sampling::mapping, `Domain::Upper`).
+    /// An already-resampled HDS03 hemisphere square (mapping, `Domain::Upper`).
     HemisphereSquare,
 }
 
@@ -156,7 +156,7 @@ impl Projection {
             }
             Projection::HemisphereSquare => {
                 let uv = glam::DVec2::new((i as f64 + 0.5) / w, (j as f64 + 0.5) / h);
-                let dir = crate::sampling::Domain::Upper.square_to_dir(uv);
+                let dir = crate::mapping::Domain::Upper.square_to_dir(uv);
                 Some((dir, 2.0 * PI / (w * h)))
             }
             Projection::Fisheye {
@@ -360,7 +360,7 @@ impl EnvMap {
                 let u = phi / (2.0 * PI) + 0.5;
                 Some(((u * w) as i64, (theta / PI * h) as i64))
             }
-            Projection::HemisphereSquare => crate::sampling::Domain::Upper
+            Projection::HemisphereSquare => crate::mapping::Domain::Upper
                 .dir_to_square(dir)
                 .map(|uv| ((uv.x * w) as i64, (uv.y * h) as i64)),
             Projection::Fisheye {
@@ -427,7 +427,7 @@ impl EnvMap {
     }
 
     /// Brute-force ∫ L dω over the pixels whose direction lies in `domain` (ALGORITHMS.md §8).
-    pub fn integral(&self, domain: crate::sampling::Domain) -> [f64; 3] {
+    pub fn integral(&self, domain: crate::mapping::Domain) -> [f64; 3] {
         let mut sum = [0.0f64; 3];
         for j in 0..self.height {
             for i in 0..self.width {

@@ -10,13 +10,27 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod capture;
+pub mod daemon;
 pub mod envmap;
 pub mod eval;
 pub mod lights;
 pub mod lightset;
+pub mod mapping;
 pub mod metrics;
 #[cfg(feature = "render")]
 pub mod render;
 pub mod sampling;
 pub mod server;
 pub mod temporal;
+
+/// Helpers for the unit tests.
+#[cfg(test)]
+pub(crate) mod test_util {
+    /// A small deterministic generator (64-bit LCG → uniform in [0, 1)), so tests need no crate.
+    pub fn lcg(state: &mut u64) -> f64 {
+        *state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*state >> 11) as f64) / ((1u64 << 53) as f64)
+    }
+}

@@ -6,7 +6,7 @@
 use crate::envmap::{EnvMap, Projection};
 use crate::lights::error::IrradianceReference;
 use crate::lights::{
-    ExtractOptions, Extractor, Light, Method, PrimaryLight, primary_light, total_irradiance,
+    Extractor, FrameRequest, Light, Method, PrimaryLight, primary_light, total_irradiance,
 };
 use crate::sampling::{Domain, N_MAX};
 use crate::temporal::FilterInfo;
@@ -214,40 +214,47 @@ pub fn lightset_for_map(
         .domain
         .unwrap_or_else(|| default_domain(&map.projection));
     let t = Instant::now();
-    extractor.resample(map, domain, None);
+    let image = extractor.resample(map, domain, None);
     let resample_ms = t.elapsed().as_secs_f64() * 1e3;
-    let opts = |n| ExtractOptions {
-        lights: n,
-        domain,
-        method: req.method,
-        side: None,
+    let mut extract = |n: usize, sh9: bool| {
+        let mut frame = extractor.extract_frame(
+            map,
+            &image,
+            &FrameRequest {
+                method: req.method,
+                counts: &[n],
+                sh9,
+            },
+        );
+        let ex = frame
+            .extractions
+            .pop()
+            .expect("one count asked, one extraction");
+        (ex, frame.sh9)
     };
 
     let needs_reference = req.max_error.is_some() || req.estimate_error;
-    let reference = needs_reference.then(|| {
-        IrradianceReference::from_domain_image(extractor.domain_image().expect("resampled"))
-    });
-    let (ex, error, met) = match (req.max_error, &reference) {
+    let reference = needs_reference.then(|| IrradianceReference::from_domain_image(&image));
+    let ((ex, sh9), error, met) = match (req.max_error, &reference) {
         (Some(target), Some(reference)) => {
             // Powers of two up to the cap, then the cap itself.
             let mut n = 1;
             loop {
                 let n_now = n.min(req.lights);
-                let ex = extractor.extract_resampled(map, &opts(n_now));
+                let (ex, sh9) = extract(n_now, req.sh9);
                 let err = reference.error(&ex.lights).rel_rms;
                 if err <= target || n_now == req.lights {
-                    break (ex, Some(err), Some(err <= target));
+                    break ((ex, sh9), Some(err), Some(err <= target));
                 }
                 n *= 2;
             }
         }
         _ => {
-            let ex = extractor.extract_resampled(map, &opts(req.lights));
+            let (ex, sh9) = extract(req.lights, req.sh9);
             let err = reference.as_ref().map(|r| r.error(&ex.lights).rel_rms);
-            (ex, err, None)
+            ((ex, sh9), err, None)
         }
     };
-    let sh9 = if req.sh9 { extractor.sh9() } else { None };
     let mut set = LightSet::new(
         ex.lights, map, req.method, domain, source, req.lights, ex.side,
     );

@@ -310,7 +310,7 @@ const MIN_FPS: f64 = 0.001;
 const MAX_FPS: f64 = 1000.0;
 
 fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
-    use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
+    use vemlight::daemon::{self, Hub, PipelineConfig};
     use vemlight::server::{AppState, CorsOrigins, Uploads, WsConfig, run, shutdown_signal};
     use vemlight::temporal::{FilterKind, FilterSpec};
 
@@ -366,11 +366,10 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
 
     let cors = CorsOrigins::parse(&args.cors_origins).map_err(anyhow::Error::msg)?;
 
-    let hub = Hub::new(args.lights, 16, &source.describe());
+    let hub = Hub::new(args.lights, daemon::MAX_LIGHT_COUNTS, &source.describe());
     let cfg = PipelineConfig {
         method: args.method,
         domain: args.domain,
-        default_lights: args.lights,
         filter,
         sh9: true,
         refine: args.refine as usize,
@@ -391,7 +390,7 @@ fn run_serve(args: ServeArgs) -> anyhow::Result<()> {
         let listener = tokio::net::TcpListener::bind(addr)
             .await
             .with_context(|| format!("cannot listen on {addr}"))?;
-        pipeline::spawn(source, hub.clone(), cfg)?;
+        daemon::spawn(source, hub.clone(), cfg)?;
         let addr = listener.local_addr()?;
         tracing::info!(
             "vemlight serving on http://{addr} (stream: ws://{addr}/v1/stream){}",

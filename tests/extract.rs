@@ -6,7 +6,7 @@ use common::{MAPS, assert_valid, lightset_validator, load};
 use glam::DVec3;
 use vemlight::envmap::{EnvMap, Lens, Projection};
 use vemlight::lights::error::IrradianceReference;
-use vemlight::lights::{ExtractOptions, Extractor, Method, total_irradiance};
+use vemlight::lights::{ExtractOptions, Extractor, FrameRequest, Method, total_irradiance};
 use vemlight::lightset::{LightRequest, lightset_for_map};
 use vemlight::sampling::{Domain, Resampler};
 
@@ -75,22 +75,33 @@ fn streamed_sh_matches_a_per_pixel_projection() {
             let e: f64 = c.iter().zip(&exact).map(|(a, b)| (a - b).powi(2)).sum();
             (e / exact.iter().map(|a| a * a).sum::<f64>()).sqrt()
         };
-        let mut ex = Extractor::new();
-        ex.extract(&map, &opts(64, Domain::Sphere, Method::Voronoi));
+        let with_sh = |refine: usize| {
+            let mut ex = Extractor::new();
+            ex.set_refine(refine);
+            let image = ex.resample(&map, Domain::Sphere, None);
+            let frame = ex.extract_frame(
+                &map,
+                &image,
+                &FrameRequest {
+                    method: Method::Voronoi,
+                    counts: &[64],
+                    sh9: true,
+                },
+            );
+            let sh9: Vec<f64> = frame.sh9.unwrap().iter().map(|&c| c as f64).collect();
+            (image, sh9)
+        };
+        let (image, streamed) = with_sh(vemlight::lights::DEFAULT_REFINE);
         assert!(
-            ex.domain_image().unwrap().side.is_multiple_of(2),
+            image.side.is_multiple_of(2),
             "{name}: the half-resolution path"
         );
-        let streamed: Vec<f64> = ex.sh9().unwrap().iter().map(|&c| c as f64).collect();
-        let centres = sh::project(ex.domain_image().unwrap());
+        let centres = sh::project(&image);
         let (a, b) = (off(&streamed), off(&centres));
         assert!(a < 1.5e-3, "{name}: sh9 {a:.2e} off");
         worst = (worst.0.max(a), worst.1.max(b));
         // Made here when no Lloyd step made it: the same coefficients.
-        let mut once = Extractor::new();
-        once.set_refine(0);
-        once.extract(&map, &opts(64, Domain::Sphere, Method::Voronoi));
-        let again: Vec<f64> = once.sh9().unwrap().iter().map(|&c| c as f64).collect();
+        let (_, again) = with_sh(0);
         assert_eq!(streamed, again, "{name}");
     }
     assert!(

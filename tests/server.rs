@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::http::HeaderValue;
-use vemlight::capture::pipeline::{self, Hub, PipelineConfig};
 use vemlight::capture::{FrameSource, SourceError, pace};
+use vemlight::daemon::{self, Hub, PipelineConfig};
 use vemlight::envmap::{EnvMap, Projection};
 use vemlight::server::{AppState, CorsOrigins, Uploads, WsConfig, run};
 
@@ -111,7 +111,7 @@ async fn start_with_cors(
     cors: CorsOrigins,
 ) -> Server {
     let hub = Hub::new(64, 16, "memory");
-    pipeline::spawn(Box::new(source), hub.clone(), PipelineConfig::default()).unwrap();
+    daemon::spawn(Box::new(source), hub.clone(), PipelineConfig::default()).unwrap();
     let mut uploads = Uploads::new(max_body, 16 * 1024 * 1024, 2);
     uploads.idle_timeout = UPLOAD_IDLE;
     let state = AppState::new(
@@ -1266,7 +1266,7 @@ async fn frames_streamed_by_rows_give_the_lights_of_the_whole_frame() {
         video: false,
         ..PipelineConfig::default()
     };
-    pipeline::spawn(Box::new(source), hub.clone(), cfg).unwrap();
+    daemon::spawn(Box::new(source), hub.clone(), cfg).unwrap();
     // Two frames, each written in pieces that do not line up with the source's batches of rows.
     let writer_thread = std::thread::spawn(move || {
         for _ in 0..2 {
@@ -1276,12 +1276,14 @@ async fn frames_streamed_by_rows_give_the_lights_of_the_whole_frame() {
         }
     });
     let deadline = Instant::now() + Duration::from_secs(20);
-    while !(hub.health().state == "ended" && hub.latest().is_some_and(|p| p.frame == 1)) {
+    while !(hub.health().state == daemon::SourceState::Ended
+        && hub.latest().is_some_and(|p| p.frame == 1))
+    {
         assert!(Instant::now() < deadline, "{:?}", hub.health());
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     writer_thread.join().unwrap();
-    let doc: serde_json::Value = serde_json::from_str(hub.latest().unwrap().json.as_str()).unwrap();
+    let doc: serde_json::Value = serde_json::from_slice(&hub.latest().unwrap().json).unwrap();
     assert_valid(&lightset_validator(), &doc);
     let path = data_path("sunrise.exr");
     let cli = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
@@ -1304,7 +1306,7 @@ async fn a_source_faster_than_extraction_drops_and_counts_frames() {
     let s = start(src, None, 64 << 20).await;
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
-        if s.hub.health().state == "ended" {
+        if s.hub.health().state == daemon::SourceState::Ended {
             break;
         }
         assert!(Instant::now() < deadline, "source did not end");

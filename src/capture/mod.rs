@@ -1,18 +1,11 @@
-//! Frame sources and the capture pipeline: the first and the last stage of the daemon.
+//! Frame sources: the first stage of the daemon (DESIGN.md, "The pipeline").
 //!
-//! Input: a [`FrameSource`] ([`synthetic`], the built-in dynamic sky `vemlight serve` uses by
-//! default so the daemon runs with no camera and no data; a file; a directory of frames; raw
-//! frames on stdin). Output: filtered LightSet documents, published per light count on `watch` channels
-//! (latest-state semantics: a slow reader skips frames and never holds up the capture loop).
-//!
-//! Threads: one reads frames and resamples each into the domain square (a streaming source's, such
-//! as a camera pipe's, a batch of rows at a time as they arrive, so that little is left when the
-//! last row is in), into a one-slot mailbox (a frame not yet taken when the next arrives is dropped
-//! and counted); one takes the newest frame, extracts lights for every light count clients ask for
-//! (one warp shared by all), filters each id over time and publishes.
+//! A [`FrameSource`] yields environment-map frames at its own pace: [`synthetic`], the built-in
+//! dynamic sky `vemlight serve` uses by default so the daemon runs with no camera and no data; a
+//! file or a directory of frames ([`files`]); raw frames on stdin ([`stdin`]). The daemon's
+//! pipeline ([`crate::daemon`]) takes the frames from here.
 
 pub mod files;
-pub mod pipeline;
 pub mod stdin;
 pub mod synthetic;
 

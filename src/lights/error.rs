@@ -60,7 +60,7 @@ impl IrradianceReference {
     }
 
     /// Brute force over every pixel of the source map inside the domain (the test oracle).
-    pub fn from_map(map: &EnvMap, domain: crate::sampling::Domain) -> Self {
+    pub fn from_map(map: &EnvMap, domain: crate::mapping::Domain) -> Self {
         Self::from_emitters(&map_emitters(map, domain))
     }
 
@@ -134,7 +134,7 @@ impl IrradianceReference {
 
 /// Every pixel of `map` inside `domain` with positive luminance, as an emitter (unit direction,
 /// luminance × sr): the brute-force ground truth of ALGORITHMS.md §8.
-pub fn map_emitters(map: &EnvMap, domain: crate::sampling::Domain) -> Vec<(Vec3, f32)> {
+pub fn map_emitters(map: &EnvMap, domain: crate::mapping::Domain) -> Vec<(Vec3, f32)> {
     let mut emitters = Vec::with_capacity(map.width * map.height);
     for j in 0..map.height {
         for i in 0..map.width {

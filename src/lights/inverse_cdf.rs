@@ -15,7 +15,7 @@
 //! integral is 0 becomes uniform.
 
 use crate::envmap::{EnvMap, Projection};
-use crate::sampling::domain::LatLongView;
+use crate::sampling::resample::LatLongView;
 use crate::sampling::{Domain, DomainImage};
 use glam::{DVec2, DVec3, Vec3};
 use std::f64::consts::PI;

@@ -7,7 +7,7 @@
 
 use super::Light;
 use crate::envmap::{EnvMap, Projection};
-use crate::sampling::domain::LatLongView;
+use crate::sampling::resample::LatLongView;
 use crate::sampling::{Domain, DomainImage};
 use glam::DVec3;
 use std::f64::consts::PI;

@@ -178,6 +178,25 @@ pub struct Extraction {
     pub timings: StageTimings,
 }
 
+/// What one [`Extractor::extract_frame`] call computes from a frame's domain image.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameRequest<'a> {
+    pub method: Method,
+    /// Light counts, each extracted from the same image.
+    pub counts: &'a [usize],
+    /// Whether to project the L2 SH (the LightSet's `sh9`) as well.
+    pub sh9: bool,
+}
+
+/// What [`Extractor::extract_frame`] gives: one extraction per count asked for, in that order.
+#[derive(Clone, Debug)]
+pub struct FrameLights {
+    pub extractions: Vec<Extraction>,
+    pub sh9: Option<Vec<f32>>,
+    /// Seconds spent on the SH.
+    pub sh9_s: f64,
+}
+
 /// Wall-clock time of each stage, in seconds.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct StageTimings {
@@ -212,8 +231,10 @@ pub const DEFAULT_REFINE: usize = 2;
 /// Turns maps into lights, keeping every table and buffer between frames so that a video stream of
 /// same-sized maps allocates nothing per frame in the hot loop.
 pub struct Extractor {
+    /// The resampler and image of [`extract`](Extractor::extract) and
+    /// [`extract_many`](Extractor::extract_many), which resample the map themselves.
     resampler: Option<Resampler>,
-    image: Option<DomainImage>,
+    own_image: DomainImage,
     dist: Distribution2D,
     grid: Option<CandidateGrid>,
     /// The Lloyd steps' half-resolution image and its grid (see `assign_spherical`).
@@ -438,7 +459,7 @@ impl Default for Extractor {
     fn default() -> Self {
         Extractor {
             resampler: None,
-            image: None,
+            own_image: DomainImage::empty(),
             dist: Distribution2D::default(),
             grid: None,
             half_image: DomainImage::empty(),
@@ -467,33 +488,10 @@ impl Extractor {
         Self::default()
     }
 
-    /// The domain image of the last extraction (for SH, error estimates and tests).
-    pub fn domain_image(&self) -> Option<&DomainImage> {
-        self.image.as_ref()
-    }
-
-    /// L2 radiance SH of the last resampled frame (see [`sh`]), as the 27 floats of `sh9`:
-    /// projected at the texels' moment directions on the half-resolution image (the one the
-    /// Lloyd steps already made, else made here), see [`sh::project_at_moments`].
-    pub fn sh9(&mut self) -> Option<Vec<f32>> {
-        let image = self.image.as_ref()?;
-        let coeffs = if has_coarse_copy(image) {
-            refresh_half(image, &mut self.half_image, &mut self.half_is_current);
-            sh::project_at_moments(&self.half_image)
-        } else {
-            sh::project_at_moments(image)
-        };
-        Some(coeffs.iter().map(|&c| c as f32).collect())
-    }
-
     /// Extra Lloyd steps for [`Method::Voronoi`] (default [`DEFAULT_REFINE`]): after the first
     /// assignment, re-seed each light at its centroid and assign again, `steps` times. Each step
-    /// costs one more assignment pass. On the shared maps (median diffuse error, N = 16 / 64 / 256
-    /// / 1024; median cut 3.94 / 0.81 / 0.116 / 0.0170 %): 0 steps 3.09 / 0.59 / 0.112 /
-    /// 0.0231 %, 1 step 1.87 / 0.43 / 0.076 / 0.0173 %, 2 steps 1.53 / 0.37 / 0.072 / 0.0156 %;
-    /// glossy (Phong 128) at N = 64 / 1024: 25.6 / 1.47 %, 20.5 / 1.14 %, 18.3 / 1.03 % (median
-    /// cut 25.0 / 1.39 %). Over time the irradiance flicker is unchanged but the lights move about
-    /// twice as much (docs/EVALUATION.md, temporal table).
+    /// costs one more assignment pass; two is the fewest with which the diffuse error is at most
+    /// median cut's at every N ≥ 16 (docs/EVALUATION.md, docs/PERFORMANCE.md).
     pub fn set_refine(&mut self, steps: usize) {
         self.refine = steps.min(8);
     }
@@ -503,11 +501,11 @@ impl Extractor {
     /// of warping the fixed points afresh, and takes one full-resolution Lloyd step from them, so
     /// that each light follows what its cell holds and moves only as far as that moves. Warping
     /// afresh, a lamp that slides from one row of the warp's conditional CDFs to the next drags
-    /// the points of that row across it (the warp is continuous but far from smooth there): 20–60°
-    /// jumps of one light id in one frame on the lit interior under a 0.25°/frame rotation. A
-    /// steady scene converges toward a k-means fixed point (ALGORITHMS.md §10), one step a frame.
-    /// The first frame, and any frame of another size or count, starts from the warp and takes
-    /// [`VIDEO_START_STEPS`] Lloyd steps.
+    /// the points of that row across it (the warp is continuous but far from smooth there), and
+    /// light ids jump tens of degrees in one frame (ALGORITHMS.md §11). A steady scene converges
+    /// toward a k-means fixed point (ALGORITHMS.md §10), one step a frame. The first frame, and
+    /// any frame of another size or count, starts from the warp and takes [`VIDEO_START_STEPS`]
+    /// Lloyd steps.
     pub fn set_video(&mut self, video: bool) {
         self.video = video;
         if !video {
@@ -520,63 +518,30 @@ impl Extractor {
         self.placement = placement;
     }
 
-    /// Resamples `map` into the domain square (cached table), leaving it in `self.image`.
-    pub fn resample(&mut self, map: &EnvMap, domain: Domain, side: Option<usize>) -> &DomainImage {
-        let r = Resampler::reuse(&mut self.resampler, map, domain, side, 1);
-        self.half_is_current = false;
-        match &mut self.image {
-            Some(img) => r.resample_into(map, img),
-            None => self.image = Some(r.resample(map)),
-        }
-        self.image.as_ref().expect("just set")
-    }
-
-    /// Extracts lights from one map.
+    /// Extracts lights from one map: resamples it into the domain square (the table is cached
+    /// between calls for maps of one size and projection), then [`extract_frame`](Self::extract_frame).
     pub fn extract(&mut self, map: &EnvMap, opts: &ExtractOptions) -> Extraction {
-        let t0 = Instant::now();
-        self.resample(map, opts.domain, opts.side);
-        let resample_s = t0.elapsed().as_secs_f64();
-        let mut ex = self.extract_resampled(map, opts);
+        let (image, resample_s) = self.resample_own(map, opts.domain, opts.side);
+        let mut frame = self.extract_frame(
+            map,
+            &image,
+            &FrameRequest {
+                method: opts.method,
+                counts: &[opts.lights],
+                sh9: false,
+            },
+        );
+        self.own_image = image;
+        let mut ex = frame
+            .extractions
+            .pop()
+            .expect("one count asked, one extraction");
         ex.timings.resample_s = resample_s;
         ex
     }
 
-    /// Extracts lights from the domain image left by [`resample`](Self::resample).
-    pub fn extract_resampled(&mut self, map: &EnvMap, opts: &ExtractOptions) -> Extraction {
-        let n = opts.lights.clamp(1, N_MAX);
-        let image = self.image.take().expect("resample() first");
-        let total = image.integral();
-        let side = image.side;
-        let mut timings = StageTimings::default();
-        let lights = match opts.method {
-            Method::Voronoi | Method::Paper | Method::InverseCdf => {
-                let t = Instant::now();
-                self.warp_seeds(map, &image, opts.method, n);
-                timings.warp_s = t.elapsed().as_secs_f64();
-                let t = Instant::now();
-                let l = self.assign_seeds(&image, opts.method);
-                timings.assign_s = t.elapsed().as_secs_f64();
-                l
-            }
-            Method::MedianCut | Method::KMeans | Method::Vmlps => {
-                let t = Instant::now();
-                let l = self.lights_for(map, &image, opts.method, n);
-                timings.assign_s = t.elapsed().as_secs_f64();
-                l
-            }
-        };
-        self.image = Some(image);
-        Extraction {
-            lights,
-            total,
-            side,
-            timings,
-        }
-    }
-
-    /// Several light counts from one frame, sharing the resampling and the warp: the seeds of N
-    /// lights are the first N of the seeds of the largest count (ALGORITHMS.md §4), so only the
-    /// per-count assignment is repeated. Results are in the order of `counts`.
+    /// Several light counts from one map (see [`extract_frame`](Self::extract_frame)), resampled
+    /// here at the side chosen from its resolution. Results are in the order of `counts`.
     pub fn extract_many(
         &mut self,
         map: &EnvMap,
@@ -584,73 +549,136 @@ impl Extractor {
         method: Method,
         counts: &[usize],
     ) -> Vec<Extraction> {
-        let t0 = Instant::now();
-        self.resample(map, domain, None);
-        let resample_s = t0.elapsed().as_secs_f64();
-        let mut out = self.extract_many_resampled(map, method, counts);
+        let (image, resample_s) = self.resample_own(map, domain, None);
+        let frame = self.extract_frame(
+            map,
+            &image,
+            &FrameRequest {
+                method,
+                counts,
+                sh9: false,
+            },
+        );
+        self.own_image = image;
+        let mut out = frame.extractions;
         for ex in &mut out {
             ex.timings.resample_s = resample_s;
         }
         out
     }
 
-    /// Takes `image`, the domain image of `map` resampled elsewhere (the daemon resamples a frame
-    /// on its capture thread, as the frame arrives), as the current frame's; returns the previous
-    /// one so that its buffers can be reused.
-    pub fn put_image(&mut self, image: DomainImage) -> Option<DomainImage> {
-        self.half_is_current = false;
-        self.image.replace(image)
+    /// Resamples `map` into a new domain image for [`extract_frame`](Self::extract_frame), with
+    /// the extractor's cached table (kept between calls for maps of one size and projection).
+    pub fn resample(&mut self, map: &EnvMap, domain: Domain, side: Option<usize>) -> DomainImage {
+        Resampler::reuse(&mut self.resampler, map, domain, side, 1).resample(map)
     }
 
-    /// [`extract_many`](Self::extract_many) from the image left by [`resample`](Self::resample)
-    /// or [`put_image`](Self::put_image) (its timings' `resample_s` is 0).
-    pub fn extract_many_resampled(
+    /// Resamples `map` into the extractor's own image (for [`extract`](Self::extract) and
+    /// [`extract_many`](Self::extract_many)), which the caller hands back after use.
+    fn resample_own(
         &mut self,
         map: &EnvMap,
-        method: Method,
-        counts: &[usize],
-    ) -> Vec<Extraction> {
-        let max_n = counts.iter().copied().max().unwrap_or(1).clamp(1, N_MAX);
-        let image = self.image.take().expect("resample() or put_image() first");
+        domain: Domain,
+        side: Option<usize>,
+    ) -> (DomainImage, f64) {
+        let t0 = Instant::now();
+        let r = Resampler::reuse(&mut self.resampler, map, domain, side, 1);
+        let mut image = std::mem::replace(&mut self.own_image, DomainImage::empty());
+        r.resample_into(map, &mut image);
+        (image, t0.elapsed().as_secs_f64())
+    }
+
+    /// The one extraction call: lights for each of `req.counts` (and, if asked, the L2 SH) from
+    /// `image`, the domain image of `map` (resampled by the caller: the daemon resamples a frame on
+    /// its capture thread as the frame arrives). The counts share the frame's work: the seeds of N
+    /// lights are the first N of the seeds of the largest count (ALGORITHMS.md §4), so the paper
+    /// and inverse-CDF warps run once, and the half-resolution image of the Lloyd steps and the SH
+    /// is made once. Results are in the order of `req.counts`; `resample_s` is 0 in their timings.
+    pub fn extract_frame(
+        &mut self,
+        map: &EnvMap,
+        image: &DomainImage,
+        req: &FrameRequest,
+    ) -> FrameLights {
+        // A new image: its half-resolution copy is made again when first needed.
+        self.half_is_current = false;
+        let max_n = req
+            .counts
+            .iter()
+            .copied()
+            .max()
+            .unwrap_or(1)
+            .clamp(1, N_MAX);
         let total = image.integral();
         let mut warp_s = 0.0;
         // The paper and inverse-CDF warps do not depend on N: one warp serves every count. The
         // default's density is capped for its N (see `Placement`), so it warps per count.
-        let shared_warp = matches!(method, Method::Paper | Method::InverseCdf);
+        let shared_warp = matches!(req.method, Method::Paper | Method::InverseCdf);
         if shared_warp {
             let t = Instant::now();
-            self.warp_seeds(map, &image, method, max_n);
+            self.warp_seeds(map, image, req.method, max_n);
             warp_s = t.elapsed().as_secs_f64();
         }
         let all_seeds = std::mem::take(&mut self.seeds);
-        let out = counts
+        let extractions = req
+            .counts
             .iter()
             .map(|&n| {
                 let n = n.clamp(1, N_MAX);
-                let t = Instant::now();
-                let lights = match method {
-                    Method::Paper | Method::InverseCdf => {
-                        self.seeds.clear();
-                        self.seeds.extend_from_slice(&all_seeds[..n]);
-                        self.assign_seeds(&image, method)
-                    }
-                    _ => self.lights_for(map, &image, method, n),
+                let mut timings = StageTimings {
+                    warp_s,
+                    ..StageTimings::default()
+                };
+                let lights = if shared_warp {
+                    let t = Instant::now();
+                    self.seeds.clear();
+                    self.seeds.extend_from_slice(&all_seeds[..n]);
+                    let l = self.assign_seeds(image, req.method);
+                    timings.assign_s = t.elapsed().as_secs_f64();
+                    l
+                } else if req.method == Method::Voronoi {
+                    let t = Instant::now();
+                    self.warp_seeds(map, image, req.method, n);
+                    timings.warp_s = t.elapsed().as_secs_f64();
+                    let t = Instant::now();
+                    let l = self.assign_seeds(image, req.method);
+                    timings.assign_s = t.elapsed().as_secs_f64();
+                    l
+                } else {
+                    let t = Instant::now();
+                    let l = self.lights_for(map, image, req.method, n);
+                    timings.assign_s = t.elapsed().as_secs_f64();
+                    l
                 };
                 Extraction {
                     lights,
                     total,
                     side: image.side,
-                    timings: StageTimings {
-                        resample_s: 0.0,
-                        warp_s,
-                        assign_s: t.elapsed().as_secs_f64(),
-                    },
+                    timings,
                 }
             })
             .collect();
         self.seeds = all_seeds;
-        self.image = Some(image);
-        out
+        let t = Instant::now();
+        let sh9 = req.sh9.then(|| self.sh9(image));
+        FrameLights {
+            extractions,
+            sh9,
+            sh9_s: t.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// L2 radiance SH of `image` (see [`sh`]), as the 27 floats of `sh9`: projected at the
+    /// texels' moment directions on the half-resolution image (the one the Lloyd steps already
+    /// made for this frame, else made here), see [`sh::project_at_moments`].
+    fn sh9(&mut self, image: &DomainImage) -> Vec<f32> {
+        let coeffs = if has_coarse_copy(image) {
+            refresh_half(image, &mut self.half_image, &mut self.half_is_current);
+            sh::project_at_moments(&self.half_image)
+        } else {
+            sh::project_at_moments(image)
+        };
+        coeffs.iter().map(|&c| c as f32).collect()
     }
 
     /// `n` lights by a method that warps per count or not at all (the default, median cut,

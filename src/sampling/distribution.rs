@@ -197,7 +197,7 @@ fn lerp_cdf(cdf: &[f64], x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sampling::test_util::lcg;
+    use crate::test_util::lcg;
 
     fn random_grid(w: usize, h: usize, seed: u64) -> Vec<f32> {
         let mut s = seed;

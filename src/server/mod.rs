@@ -10,7 +10,7 @@ pub mod stream;
 
 pub use error::ApiError;
 
-use crate::capture::pipeline::Hub;
+use crate::daemon::{Hub, SourceState};
 use crate::envmap::{Decoding, EnvMap, Projection};
 use crate::lights::{Extractor, Method};
 use crate::lightset::{LightRequest, lightset_for_map, now_ns};
@@ -403,7 +403,7 @@ async fn healthz(State(state): State<AppState>) -> Response {
     let latest = state.hub.latest();
     let status = match (latest.is_some(), source.delivering()) {
         // The source ended or failed before its first good frame: nothing will come.
-        (false, _) if matches!(source.state, "ended" | "failed") => "failed",
+        (false, _) if matches!(source.state, SourceState::Ended | SourceState::Failed) => "failed",
         (false, _) => "starting",
         (true, true) => "ok",
         (true, false) => "degraded",
@@ -476,10 +476,11 @@ async fn latest(
         }
     };
     let p = published.ok_or_else(|| ApiError::Unavailable("no light set yet".into()))?;
-    Ok(json_response(p.json.as_str().to_owned()))
+    Ok(json_response(p.json.clone()))
 }
 
-fn json_response(body: String) -> Response {
+fn json_response(body: impl Into<axum::body::Body>) -> Response {
+    let body: axum::body::Body = body.into();
     (
         [(
             header::CONTENT_TYPE,

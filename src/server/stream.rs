@@ -5,10 +5,10 @@
 //! stops reading for longer than the send timeout is disconnected.
 
 use super::{ApiError, AppState, parse_param};
-use crate::capture::pipeline::Subscription;
+use crate::daemon::Subscription;
 use crate::metrics::Metrics;
 use axum::extract::ws::rejection::WebSocketUpgradeRejection;
-use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade, close_code};
+use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade, close_code};
 use axum::extract::{Query, State};
 use axum::response::Response;
 use futures_util::stream::SplitSink;
@@ -89,7 +89,7 @@ async fn client_loop(
         send_timeout: state.ws.send_timeout,
         timed: false,
     };
-    let mut shutdown = state.hub.shutdown_tx.subscribe();
+    let shutdown = state.hub.shutdown_token();
     let mut ping = tokio::time::interval_at(
         Instant::now() + state.ws.ping_interval,
         state.ws.ping_interval,
@@ -137,7 +137,7 @@ async fn client_loop(
                 }
                 Some(Ok(_)) => continue, // pongs and anything a client says are ignored
             },
-            _ = shutdown.changed() => {
+            () = shutdown.cancelled() => {
                 let close = Message::Close(Some(CloseFrame {
                     code: close_code::AWAY,
                     reason: "vemlight is shutting down".into(),
@@ -203,7 +203,12 @@ impl Sender<'_> {
             return Sent::Nothing;
         };
         let len = set.json.len() as u64;
-        let msg = Message::Text(set.json.clone());
+        // The hub's bytes are the UTF-8 JSON the pipeline serialised; the check is a cheap scan.
+        let Ok(text) = Utf8Bytes::try_from(set.json.clone()) else {
+            tracing::error!("a published light set is not UTF-8");
+            return Sent::Nothing;
+        };
+        let msg = Message::Text(text);
         match tokio::time::timeout(self.send_timeout, self.tx.send(msg)).await {
             Ok(Ok(())) => {
                 if self.timed {

@@ -1,19 +1,33 @@
-//! The daemon's capture → extract → filter → publish loop, and the [`Hub`] through which the
-//! server reads what it publishes.
+//! The capture daemon's pipeline: frames from a [`FrameSource`] → domain image → lights per light
+//! count → temporal filter → LightSet documents published into the [`Hub`], which the server reads
+//! (DESIGN.md, "The pipeline").
+//!
+//! Threads: one reads frames and resamples each into the domain square (a streaming source's, such
+//! as a camera pipe's, a batch of rows at a time as they arrive, so that little is left when the
+//! last row is in), into a one-slot mailbox (a frame not yet taken when the next arrives is dropped
+//! and counted); one takes the newest frame, extracts lights for every light count clients ask for
+//! (one warp shared by all), filters each id over time and publishes. Publication is latest-state
+//! (a `watch` channel per light count): a slow reader skips sets and never holds up the capture
+//! loop.
 
-use super::{FrameSource, SourceError};
+pub mod hub;
+
+pub use hub::{Hub, Published, SourceHealth, SourceState, Subscription, stall_after};
+
+use crate::capture::{FrameSource, SourceError};
 use crate::envmap::{EnvMap, Projection};
-use crate::lights::{Extractor, Method};
+use crate::lights::{Extractor, FrameLights, FrameRequest, Method};
 use crate::lightset::{LightSet, Timings, default_domain, now_ns};
 use crate::metrics::Metrics;
-use crate::sampling::{Domain, DomainImage, N_MAX, Resampler};
+use crate::sampling::{Domain, DomainImage, Resampler};
 use crate::temporal::{FilterInfo, FilterSpec, TemporalFilter};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::ops::Range;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
-use tokio::sync::watch;
+
+/// Most distinct light counts the daemon serves at once: each costs one assignment pass a frame.
+pub const MAX_LIGHT_COUNTS: usize = 16;
 
 /// How the pipeline turns frames into light sets.
 #[derive(Clone, Debug)]
@@ -21,18 +35,12 @@ pub struct PipelineConfig {
     pub method: Method,
     /// `None`: sphere for lat-long sources, upper hemisphere otherwise.
     pub domain: Option<Domain>,
-    /// Light count published even with no client (and served by `/v1/lights/latest`).
-    pub default_lights: usize,
     pub filter: FilterSpec,
     pub sh9: bool,
-    /// Most distinct light counts served at once (each costs one assignment pass per frame).
-    pub max_light_counts: usize,
     /// Threads for resampling a whole frame (a streaming source's rows are resampled as they
     /// arrive, on the capture thread). One by default: the capture thread has just written the
-    /// frame, and a second thread, started per frame on the other core, reads it cold. At
-    /// 1024×512 on this 2-core guest, four interleaved pairs of `cargo bench --bench serve` runs
-    /// with the file source: mean resample 1.58 / 1.83 / 1.73 / 1.94 ms on one thread against
-    /// 2.08 / 2.30 / 2.10 / 2.23 ms on two.
+    /// frame, and a second thread, started per frame, reads it cold and was measured slower
+    /// (docs/PERFORMANCE.md).
     pub threads: usize,
     /// Extra Lloyd steps of the voronoi method (see `Extractor::set_refine`).
     pub refine: usize,
@@ -46,225 +54,12 @@ impl Default for PipelineConfig {
         PipelineConfig {
             method: Method::Voronoi,
             domain: None,
-            default_lights: 64,
             filter: FilterSpec::default(),
             sh9: true,
-            max_light_counts: 16,
             threads: 1,
             refine: crate::lights::DEFAULT_REFINE,
             video: true,
         }
-    }
-}
-
-/// One published LightSet, serialised once for every reader.
-#[derive(Debug)]
-pub struct Published {
-    pub seq: u64,
-    pub frame: u64,
-    pub t_capture_ns: u64,
-    /// When the frame entered the pipeline (for latency measurements in this process).
-    pub captured_at: Instant,
-    /// The LightSet document, shared by every reader without copying.
-    pub json: axum::extract::ws::Utf8Bytes,
-}
-
-/// The source's state as `/healthz` reports it.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct SourceHealth {
-    pub source: String,
-    /// "starting", "running", "ended" or "failed".
-    pub state: &'static str,
-    pub last_error: Option<String>,
-    pub frames_captured: u64,
-    /// Seconds since the last good frame; `None` before the first.
-    pub last_frame_age_s: Option<f64>,
-    /// Running, but no good frame for `stall_after_s`: a camera pipe that froze without closing,
-    /// say. The last good set is still served, as when the source fails.
-    pub stalled: bool,
-    /// See [`stall_after`].
-    pub stall_after_s: f64,
-}
-
-impl SourceHealth {
-    /// Running and not stalled: frames are coming.
-    pub fn delivering(&self) -> bool {
-        self.state == "running" && !self.stalled
-    }
-}
-
-/// How long a running source may go without a good frame before `/healthz` calls it stalled: ten
-/// frame periods, at least 2 s; 5 s for a source with no nominal rate (stdin).
-pub fn stall_after(nominal_fps: f64) -> Duration {
-    if nominal_fps > 0.0 && nominal_fps.is_finite() {
-        Duration::from_secs_f64((10.0 / nominal_fps).max(2.0))
-    } else {
-        Duration::from_secs(5)
-    }
-}
-
-struct HealthState {
-    source: String,
-    state: &'static str,
-    last_error: Option<String>,
-    frames: u64,
-    last_frame: Option<Instant>,
-    stall_after: Duration,
-}
-
-/// One light count's channel and how many subscribers want it.
-struct Channel {
-    subscribers: usize,
-    tx: watch::Sender<Option<Arc<Published>>>,
-}
-
-/// Shared between the pipeline threads and the server: the latest LightSet per light count,
-/// metrics and health.
-pub struct Hub {
-    channels: Mutex<BTreeMap<usize, Channel>>,
-    default_lights: usize,
-    max_light_counts: usize,
-    pub metrics: Arc<Metrics>,
-    health: Mutex<HealthState>,
-    shutdown: AtomicBool,
-    /// Notified on shutdown so per-client loops can close cleanly.
-    pub shutdown_tx: watch::Sender<bool>,
-}
-
-/// A client's interest in one light count; dropping it tells the pipeline.
-pub struct Subscription {
-    hub: Arc<Hub>,
-    pub lights: usize,
-    pub rx: watch::Receiver<Option<Arc<Published>>>,
-}
-
-impl Drop for Subscription {
-    fn drop(&mut self) {
-        let mut ch = self.hub.channels.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(c) = ch.get_mut(&self.lights) {
-            c.subscribers = c.subscribers.saturating_sub(1);
-            if c.subscribers == 0 && self.lights != self.hub.default_lights {
-                ch.remove(&self.lights);
-            }
-        }
-    }
-}
-
-impl Hub {
-    pub fn new(default_lights: usize, max_light_counts: usize, source: &str) -> Arc<Self> {
-        let mut channels = BTreeMap::new();
-        channels.insert(
-            default_lights,
-            Channel {
-                subscribers: 0,
-                tx: watch::channel(None).0,
-            },
-        );
-        Arc::new(Hub {
-            channels: Mutex::new(channels),
-            default_lights,
-            max_light_counts: max_light_counts.max(1),
-            metrics: Arc::new(Metrics::default()),
-            health: Mutex::new(HealthState {
-                source: source.into(),
-                state: "starting",
-                last_error: None,
-                frames: 0,
-                last_frame: None,
-                stall_after: stall_after(0.0),
-            }),
-            shutdown: AtomicBool::new(false),
-            shutdown_tx: watch::channel(false).0,
-        })
-    }
-
-    pub fn default_lights(&self) -> usize {
-        self.default_lights
-    }
-
-    /// Subscribes to the sets of `lights` lights (1–1024); refused when that would exceed the
-    /// number of distinct light counts served at once.
-    pub fn subscribe(self: &Arc<Self>, lights: usize) -> Result<Subscription, String> {
-        if !(1..=N_MAX).contains(&lights) {
-            return Err(format!(
-                "lights must be between 1 and {N_MAX}, got {lights}"
-            ));
-        }
-        let mut ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
-        if !ch.contains_key(&lights) && ch.len() >= self.max_light_counts {
-            let served: Vec<String> = ch.keys().map(|k| k.to_string()).collect();
-            return Err(format!(
-                "the daemon already serves {} distinct light counts ({}); ask for one of them",
-                ch.len(),
-                served.join(", ")
-            ));
-        }
-        let c = ch.entry(lights).or_insert_with(|| Channel {
-            subscribers: 0,
-            tx: watch::channel(None).0,
-        });
-        c.subscribers += 1;
-        Ok(Subscription {
-            hub: self.clone(),
-            lights,
-            rx: c.tx.subscribe(),
-        })
-    }
-
-    /// The latest set for the default light count.
-    pub fn latest(&self) -> Option<Arc<Published>> {
-        let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
-        ch.get(&self.default_lights)
-            .and_then(|c| c.tx.borrow().clone())
-    }
-
-    fn light_counts(&self) -> Vec<usize> {
-        let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
-        ch.keys().copied().collect()
-    }
-
-    /// The light counts asked for that have no set yet.
-    fn unserved_light_counts(&self) -> Vec<usize> {
-        let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
-        ch.iter()
-            .filter(|(_, c)| c.tx.borrow().is_none())
-            .map(|(&n, _)| n)
-            .collect()
-    }
-
-    fn publish(&self, lights: usize, p: Arc<Published>) {
-        let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(c) = ch.get(&lights) {
-            c.tx.send_replace(Some(p));
-        }
-    }
-
-    pub fn health(&self) -> SourceHealth {
-        let h = self.health.lock().unwrap_or_else(|e| e.into_inner());
-        SourceHealth {
-            source: h.source.clone(),
-            state: h.state,
-            last_error: h.last_error.clone(),
-            frames_captured: h.frames,
-            last_frame_age_s: h.last_frame.map(|t| t.elapsed().as_secs_f64()),
-            stalled: h.state == "running"
-                && h.last_frame.is_some_and(|t| t.elapsed() > h.stall_after),
-            stall_after_s: h.stall_after.as_secs_f64(),
-        }
-    }
-
-    fn set_health(&self, f: impl FnOnce(&mut HealthState)) {
-        f(&mut self.health.lock().unwrap_or_else(|e| e.into_inner()));
-    }
-
-    /// Stops the pipeline threads and tells every client loop to close.
-    pub fn shutdown(&self) {
-        self.shutdown.store(true, Ordering::SeqCst);
-        self.shutdown_tx.send_replace(true);
-    }
-
-    pub fn is_shut_down(&self) -> bool {
-        self.shutdown.load(Ordering::SeqCst)
     }
 }
 
@@ -398,7 +193,7 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox, cfg:
                 hub.metrics.stage_resample.record(resample_tail);
                 Metrics::inc(&hub.metrics.frames_captured);
                 hub.set_health(|h| {
-                    h.state = "running";
+                    h.state = SourceState::Running;
                     h.frames += 1;
                     h.last_frame = Some(Instant::now());
                 });
@@ -422,7 +217,7 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox, cfg:
             }
             Ok(false) => {
                 tracing::info!("source ended; serving the last light set");
-                hub.set_health(|h| h.state = "ended");
+                hub.set_health(|h| h.state = SourceState::Ended);
                 break;
             }
             Err(SourceError::BadFrame(e)) => {
@@ -437,7 +232,7 @@ fn capture_loop(source: &mut dyn FrameSource, hub: &Hub, mailbox: &Mailbox, cfg:
                 Metrics::inc(&hub.metrics.source_errors);
                 tracing::error!("source failed: {e}; serving the last light set");
                 hub.set_health(|h| {
-                    h.state = "failed";
+                    h.state = SourceState::Failed;
                     h.last_error = Some(e);
                 });
                 break;
@@ -461,7 +256,7 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
     p.extractor.set_refine(cfg.refine);
     // One camera's frames: each frame's lights start from the last frame's.
     p.extractor.set_video(cfg.video);
-    // The newest processed frame (its image stays in the extractor).
+    // The newest processed frame, kept to serve light counts asked for after it.
     let mut last: Option<LastFrame> = None;
     loop {
         let frame = {
@@ -487,10 +282,7 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             // No new frame for a while: serve the counts nobody has a set for from the last one.
             let counts = hub.unserved_light_counts();
             if let Some(l) = &last {
-                let extractions = p
-                    .extractor
-                    .extract_many_resampled(&l.map, cfg.method, &counts);
-                p.publish(hub, cfg, source, l, Duration::ZERO, &counts, extractions);
+                p.publish(hub, cfg, source, l, Duration::ZERO, &counts);
             }
             continue;
         };
@@ -504,35 +296,30 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             captured_at,
         } = frame;
         let counts = hub.light_counts();
-        let previous_image = p.extractor.put_image(image);
-        let extractions = p
-            .extractor
-            .extract_many_resampled(&map, cfg.method, &counts);
-        if let Some(first) = extractions.first() {
-            hub.metrics.stage_warp.record_secs(first.timings.warp_s);
-        }
         // Forget the filter state of light counts nobody asks for any more.
         p.filters.retain(|n, _| counts.contains(n));
         let this = LastFrame {
             map,
+            image,
             domain,
             index,
             t_capture_ns,
             captured_at,
         };
-        p.publish(hub, cfg, source, &this, resample_tail, &counts, extractions);
+        p.publish(hub, cfg, source, &this, resample_tail, &counts);
         Metrics::inc(&hub.metrics.frames_processed);
         let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(older) = last.replace(this) {
             s.spare.push(older.map);
+            s.spare_images.push(older.image);
         }
-        s.spare_images.extend(previous_image);
     }
 }
 
 /// A processed frame, kept to serve light counts asked for after it.
 struct LastFrame {
     map: EnvMap,
+    image: DomainImage,
     domain: Domain,
     index: u64,
     t_capture_ns: u64,
@@ -549,8 +336,7 @@ struct Processor {
 }
 
 impl Processor {
-    /// Filters each light count's extraction of `frame`, builds its LightSet and publishes it.
-    #[allow(clippy::too_many_arguments)]
+    /// Extracts each light count from `frame`, filters it, builds its LightSet and publishes it.
     fn publish(
         &mut self,
         hub: &Hub,
@@ -559,12 +345,25 @@ impl Processor {
         frame: &LastFrame,
         resample_tail: Duration,
         counts: &[usize],
-        extractions: Vec<crate::lights::Extraction>,
     ) {
         let m = &hub.metrics;
-        let t = Instant::now();
-        let sh9 = if cfg.sh9 { self.extractor.sh9() } else { None };
-        m.stage_sh.record(t.elapsed());
+        let FrameLights {
+            extractions,
+            sh9,
+            sh9_s,
+        } = self.extractor.extract_frame(
+            &frame.map,
+            &frame.image,
+            &FrameRequest {
+                method: cfg.method,
+                counts,
+                sh9: cfg.sh9,
+            },
+        );
+        if let Some(first) = extractions.first() {
+            m.stage_warp.record_secs(first.timings.warp_s);
+        }
+        m.stage_sh.record_secs(sh9_s);
         for (&n, ex) in counts.iter().zip(extractions) {
             m.stage_assign.record_secs(ex.timings.assign_s);
             let t = Instant::now();
@@ -610,7 +409,7 @@ impl Processor {
                         frame: frame.index,
                         t_capture_ns: frame.t_capture_ns,
                         captured_at: frame.captured_at,
-                        json: json.into(),
+                        json: json.into_bytes().into(),
                     }),
                 ),
                 Err(e) => tracing::error!("cannot serialise a light set: {e}"),

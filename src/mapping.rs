@@ -187,7 +187,7 @@ pub fn invert_equal_area_sphere(w: DVec3) -> DVec2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sampling::test_util::lcg;
+    use crate::test_util::lcg;
 
     #[test]
     fn round_trip_both_domains() {

@@ -9,8 +9,8 @@
 //! (no holes), and the pixel → texel table is computed once per (projection, size, domain) and reused
 //! every frame: the per-frame cost is one pass of gathers-by-scatter over the source pixels.
 
-use super::mapping::Domain;
 use crate::envmap::{EnvMap, Projection};
+use crate::mapping::Domain;
 use glam::{DVec2, Vec3A};
 
 /// Source pixels per domain texel aimed for, where the source is coarsest. Lights take their
