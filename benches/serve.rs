@@ -130,7 +130,7 @@ async fn latency(addr: std::net::SocketAddr, clients: usize, secs: f64) -> Vec<(
         let url = format!("ws://{addr}/v1/stream");
         tasks.push(tokio::spawn(async move {
             // A LightSet is ~10 KB: tungstenite's default 128 KiB read buffer would be zeroed on
-            // every read, loading the machine being measured (README, "Writing a client").
+            // every read, loading the machine being measured (docs/API.md, "Writing a client").
             let config = WebSocketConfig::default().read_buffer_size(16 * 1024);
             let (mut ws, _) = tokio_tungstenite::connect_async_with_config(url, Some(config), true)
                 .await
