@@ -9,7 +9,7 @@
 
 use crate::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use crate::lights::Extractor;
-use crate::lightset::{LightRequest, LightSet, lightset_for_map};
+use crate::lightset::{LightRequest, LightSet, SUBPROTOCOL, lightset_for_map};
 use anyhow::{Context, bail};
 use std::io::ErrorKind;
 use std::net::TcpStream;
@@ -19,8 +19,6 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-/// The WebSocket subprotocol of the wire format (the server's constant).
-pub use crate::server::stream::SUBPROTOCOL;
 /// Where `vemlight serve` listens by default.
 pub const DEFAULT_STREAM: &str = "ws://127.0.0.1:7878/v1/stream";
 
