@@ -6,7 +6,7 @@
 use std::net::TcpListener;
 use std::time::{Duration, Instant};
 use vemlight::lightset::{LightSet, SUBPROTOCOL};
-use vemlight::render::source::{LightFeed, Source};
+use vemlight::render::view::source::{LightFeed, Source};
 
 fn a_lightset(seq: u64) -> String {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))

@@ -5,7 +5,8 @@
 //! The stream runs a blocking `tungstenite` client on a background thread with latest-state
 //! semantics: the render loop takes the newest set and never waits on the network. When the
 //! connection drops the feed keeps the last set (the viewer goes on drawing it, marked stale) and
-//! reconnects with exponential backoff.
+//! reconnects with exponential backoff. The wire format (the document, its subprotocol) comes from
+//! [`crate::lightset`]; the client imports nothing of the server (DESIGN.md, "The wire format").
 
 use crate::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use crate::lights::Extractor;
