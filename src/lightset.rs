@@ -16,6 +16,11 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 /// The value of the `schema` field.
 pub const SCHEMA_ID: &str = "vemlight.lightset/1";
 
+/// The WebSocket subprotocol of `GET /v1/stream`, which carries these documents one per message.
+/// It lives with the document, not the server, so the render client and the daemon share it
+/// without one importing the other (DESIGN.md "wire format").
+pub const SUBPROTOCOL: &str = "vemlight.v1";
+
 /// The JSON Schema, embedded so servers and tests use the same file.
 pub const SCHEMA_JSON: &str = include_str!("../proto/lightset.schema.json");
 

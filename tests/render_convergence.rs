@@ -6,7 +6,7 @@
 use vemlight::render::gpu::Gpu;
 use vemlight::render::overlay::Status;
 use vemlight::render::scene::{Camera, Mesh, Scene};
-use vemlight::render::source::lights_from_map;
+use vemlight::render::view::source::lights_from_map;
 use vemlight::render::{OUTPUT_FORMAT, Options, Renderer, auto_exposure};
 
 const SIZE: (u32, u32) = (160, 120);

@@ -5,8 +5,8 @@
 
 use std::net::TcpListener;
 use std::time::{Duration, Instant};
-use vemlight::lightset::LightSet;
-use vemlight::render::source::{LightFeed, SUBPROTOCOL, Source};
+use vemlight::lightset::{LightSet, SUBPROTOCOL};
+use vemlight::render::view::source::{LightFeed, Source};
 
 fn a_lightset(seq: u64) -> String {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))

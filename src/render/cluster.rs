@@ -2,7 +2,8 @@
 //!
 //! Input: the frame's [`Light`]s. Output: a [`Grouping`], lights ordered so that each [`Group`]'s
 //! members are contiguous, each group with a stable key (its shadow map follows the key through time)
-//! and an axis (the direction its shadow map is drawn from).
+//! and an axis (the direction its shadow map is drawn from). A leaf of the render tree (it uses only
+//! [`crate::lights`]): the shadow maps are kept per group and the shading pass loops over groups.
 //!
 //! Lights closer than δ to a group's axis join it (the sun: most of a clear sky's energy sits within a
 //! few degrees, and the importance-sampled set puts many lights there). A light dimmer than the

@@ -2,7 +2,8 @@
 //!
 //! Input: which backends to try ([`Backends`], from `--backend` or `WGPU_BACKEND`) and, for a window,
 //! a surface to be compatible with. Output: a [`Gpu`], or a [`GpuError`] that says what to install or
-//! change, never a panic (issue 4: "no adapter → a clear message and a non-zero exit").
+//! change, never a panic: a machine with no adapter gets a clear message and a non-zero exit
+//! (DESIGN.md, "Real parts": the software driver lavapipe is enough).
 
 use std::fmt;
 use wgpu::Backends;
@@ -140,7 +141,8 @@ impl Gpu {
         format!("{} on {:?}", info.name, info.backend)
     }
 
-    /// Whether this adapter is the GL backend (see [`crate::render::shadow`] on array layer counts).
+    /// Whether this adapter is the GL backend, where the shadow array pads its layer count
+    /// (STACK.md).
     pub fn is_gl(&self) -> bool {
         self.adapter.get_info().backend == wgpu::Backend::Gl
     }

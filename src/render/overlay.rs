@@ -6,6 +6,7 @@
 //! the centre is +Y, the radius is proportional to the angle from +Y (the ring halfway out is the
 //! horizon, the rim is −Y), the top of the disk is −Z (forward) and its right is +X, as seen from
 //! above (the fisheye convention of DESIGN.md). A dot's area is proportional to its light's power.
+//! A leaf of the render tree; the renderer draws it last, over the tonemapped frame.
 
 use crate::lights::Light;
 use std::fmt::Write;

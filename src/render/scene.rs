@@ -1,12 +1,16 @@
 //! The scene the lights fall on: triangle meshes (an OBJ via `tobj`, boxes, a ground plane), their
-//! materials, their bounds, and the camera.
+//! materials, their bounds, and the camera. The bottom of the render tree: it uses no other render
+//! module.
 //!
 //! Input: an OBJ path (or none for the built-in layout). Output: a [`Scene`], one vertex and one index
 //! list whose first [`Scene::caster_indices`] indices are the shadow casters (mesh and boxes) and the
 //! rest receive shadows only (the ground plane), so the shadow pass draws a prefix of the index buffer.
+//! For the passes, [`Scene::bucketed`] reorders the triangles by material class and normal bin
+//! ([`BIN_SIDE`]² octahedral bins), each run with the cone that holds its normals (ALGORITHMS.md §6,
+//! culling by normal extent), and [`SceneBuffers`] holds the result on the device.
 
 use anyhow::{Context, bail};
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec2, Vec3};
 use std::ops::Range;
 use std::path::Path;
 
@@ -229,7 +233,7 @@ impl Default for Scene {
 }
 
 impl Scene {
-    /// The default layout (issue 4): the mesh, 1 unit tall, on a 6 × 6 ground plane with three boxes.
+    /// The default layout: the mesh, 1 unit tall, on a 6 × 6 ground plane with three boxes.
     pub fn showcase(mesh: &Mesh) -> Scene {
         let mut scene = Scene::default();
         scene.add_mesh(mesh, mesh.placement(1.0), Material::GLAZED);
@@ -335,6 +339,48 @@ impl Scene {
     }
 }
 
+/// Side B of the B × B grid of normal bins (64 bins of about 25°) that [`Scene::bucketed`] sorts
+/// triangles into; the draws, not the shaders, carry the bins (ALGORITHMS.md §6, culling by normal
+/// extent).
+pub const BIN_SIDE: u32 = 8;
+
+/// Octahedral map of a unit vector to the unit square \[0,1\]², +Y at the centre.
+pub fn octahedral_encode(n: Vec3) -> Vec2 {
+    let mut p = Vec2::new(n.x, n.z) / (n.x.abs() + n.y.abs() + n.z.abs());
+    if n.y < 0.0 {
+        let s = Vec2::new(
+            if p.x >= 0.0 { 1.0 } else { -1.0 },
+            if p.y >= 0.0 { 1.0 } else { -1.0 },
+        );
+        p = (Vec2::ONE - Vec2::new(p.y.abs(), p.x.abs())) * s;
+    }
+    p * 0.5 + Vec2::splat(0.5)
+}
+
+/// Inverse of [`octahedral_encode`].
+pub fn octahedral_decode(uv: Vec2) -> Vec3 {
+    let p = uv * 2.0 - Vec2::ONE;
+    let y = 1.0 - p.x.abs() - p.y.abs();
+    let (x, z) = if y < 0.0 {
+        // The lower hemisphere is folded over the square's corners; unfold it.
+        (
+            (1.0 - p.y.abs()) * p.x.signum(),
+            (1.0 - p.x.abs()) * p.y.signum(),
+        )
+    } else {
+        (p.x, p.y)
+    };
+    Vec3::new(x, y, z).normalize()
+}
+
+/// Bin of a unit normal in the B × B octahedral grid (`side` = B).
+pub fn bin_of(n: Vec3, side: u32) -> u32 {
+    let uv = octahedral_encode(n) * side as f32;
+    let i = (uv.x as u32).min(side - 1);
+    let j = (uv.y as u32).min(side - 1);
+    j * side + i
+}
+
 /// A run of triangles drawn in one call, with the cone that holds all their vertex normals.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DrawRange {
@@ -365,7 +411,7 @@ impl Scene {
                 .chunks_exact(3)
                 .map(|t| {
                     let mean = normal(t[0]) + normal(t[1]) + normal(t[2]);
-                    let bin = super::shading::bin_of(mean.normalize_or(Vec3::Y), side);
+                    let bin = bin_of(mean.normalize_or(Vec3::Y), side);
                     // The class goes above the bin bits: sorting groups each class's bins.
                     let class = t.iter().any(|&i| glossy(i)) as u32;
                     (class << 16 | bin, [t[0], t[1], t[2]])
@@ -407,6 +453,42 @@ impl Scene {
             }
         }
         (indices, draws)
+    }
+}
+
+/// The scene's vertex and index buffers on the device.
+pub struct SceneBuffers {
+    pub vertices: wgpu::Buffer,
+    /// Indices bucketed by normal bin ([`Scene::bucketed`]), casters first.
+    pub indices: wgpu::Buffer,
+    /// Index range of the shadow casters, and of everything.
+    pub casters: Range<u32>,
+    pub all: Range<u32>,
+    /// The draws of the shading pass, each with its normal cone.
+    pub draws: Vec<DrawRange>,
+}
+
+impl SceneBuffers {
+    pub fn new(device: &wgpu::Device, scene: &Scene) -> SceneBuffers {
+        use wgpu::util::DeviceExt;
+        let (casters, all) = scene.index_ranges();
+        let (indices, draws) = scene.bucketed(BIN_SIDE);
+        debug_assert_eq!(indices.len(), scene.indices.len());
+        SceneBuffers {
+            vertices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("scene vertices"),
+                contents: bytemuck::cast_slice(&scene.vertices),
+                usage: wgpu::BufferUsages::VERTEX,
+            }),
+            indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("scene indices"),
+                contents: bytemuck::cast_slice(&indices),
+                usage: wgpu::BufferUsages::INDEX,
+            }),
+            casters,
+            all,
+            draws,
+        }
     }
 }
 
@@ -483,5 +565,31 @@ mod tests {
         let hi = m.transform_point3(Vec3::new(3.0, 9.0, 3.0));
         assert!(lo.abs_diff_eq(Vec3::ZERO, 1e-6), "{lo}");
         assert!((hi.y - 1.0).abs() < 1e-6, "{hi}");
+    }
+
+    #[test]
+    fn octahedral_round_trip() {
+        for k in 0..500 {
+            // Fibonacci sphere directions.
+            let y = 1.0 - 2.0 * (k as f32 + 0.5) / 500.0;
+            let phi = k as f32 * 2.399_963;
+            let r = (1.0 - y * y).sqrt();
+            let d = Vec3::new(r * phi.cos(), y, r * phi.sin());
+            let uv = octahedral_encode(d);
+            let back = octahedral_decode(uv);
+            assert!(d.dot(back) > 0.99999, "{d} -> {uv} -> {back}");
+        }
+    }
+
+    #[test]
+    fn bins_cover_the_grid() {
+        let mut seen = vec![false; (BIN_SIDE * BIN_SIDE) as usize];
+        for k in 0..20000 {
+            let y = 1.0 - 2.0 * (k as f32 + 0.5) / 20000.0;
+            let phi = k as f32 * 2.399_963;
+            let r = (1.0 - y * y).sqrt();
+            seen[bin_of(Vec3::new(r * phi.cos(), y, r * phi.sin()), BIN_SIDE) as usize] = true;
+        }
+        assert!(seen.iter().all(|&s| s));
     }
 }

@@ -2,14 +2,15 @@
 //! lighting pass lights every pixel once by all light groups through their shadow maps, into a
 //! linear HDR target (`shaders/light.wgsl`); and the normal cones that cull lights per draw.
 //!
-//! Input: the grouped lights ([`Grouping`]), each group's [`GroupShadow`], the camera. Output: the
-//! HDR target (linear radiance × exposure, Rgba32Float) that the tonemap pass displays and the tests
-//! read back.
+//! Input: the scene's device buffers ([`SceneBuffers`]), the grouped lights ([`Grouping`]), each
+//! group's [`GroupShadow`] and the shadow array, the camera. Output: the HDR target (linear radiance ×
+//! exposure, Rgba32Float) that the tonemap pass displays and the tests read back. Uses `scene`,
+//! `cluster` and `shadow`; the renderer drives it.
 //!
 //! Why deferred: lavapipe runs fragment shaders on 4 × 4 pixel blocks, so a mesh of sub-pixel
 //! triangles (the full-resolution bunny at 320 × 240) would run the many-light loop many times per
-//! covered pixel. The geometry pass pays that with a trivial shader; the lighting pass is one
-//! full-screen triangle.
+//! covered pixel. The geometry pass pays that with a trivial shader; the lighting pass is a
+//! full-screen triangle per material class.
 //!
 //! Culling by normal extent (ALGORITHMS.md §6): the scene's triangles are bucketed by normal into
 //! B × B bins of the octahedral map and drawn one bucket per call ([`Scene::bucketed`]). A bucket's
@@ -20,10 +21,10 @@
 //! [`Scene::bucketed`]: super::scene::Scene::bucketed
 
 use super::cluster::{Group, Grouping};
-use super::scene::{Camera, DrawRange, Vertex};
-use super::shadow::{GroupShadow, SceneBuffers, ShadowFit};
+use super::scene::{Camera, DrawRange, SceneBuffers, Vertex};
+use super::shadow::{GroupShadow, ShadowFit};
 use crate::lights::Light;
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 
 /// G-buffer formats: position + draw, normal + k_s, albedo + shininess.
 pub const GBUFFER_FORMATS: [wgpu::TextureFormat; 3] = [
@@ -43,8 +44,6 @@ pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth24PlusSt
 /// stencil test drops them before the lighting shader runs).
 const STENCIL_LAMBERTIAN: u32 = 1;
 const STENCIL_GLOSSY: u32 = 2;
-/// Side B of the B × B grid of normal bins (64 bins of about 25°).
-pub const BIN_SIDE: u32 = 8;
 
 /// `Globals` in light.wgsl.
 #[repr(C)]
@@ -93,7 +92,7 @@ pub const MAX_LIGHTS: usize = 1024;
 /// would not fit is shaded without culling.
 pub const MAX_LIST: usize = 16384;
 
-/// The switches of the shading pass (see [`super::Options`]).
+/// The switches of the shading pass (the renderer sets them from its `Options`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ShadingParams {
     pub exposure: f32,
@@ -105,44 +104,6 @@ pub struct ShadingParams {
     pub normal_offset: f32,
     /// Side of a shadow map, texels.
     pub shadow_size: u32,
-}
-
-/// Octahedral map of a unit vector to [0,1]², +Y at the centre (matches `octahedral_encode` in
-/// light.wgsl).
-pub fn octahedral_encode(n: Vec3) -> Vec2 {
-    let mut p = Vec2::new(n.x, n.z) / (n.x.abs() + n.y.abs() + n.z.abs());
-    if n.y < 0.0 {
-        let s = Vec2::new(
-            if p.x >= 0.0 { 1.0 } else { -1.0 },
-            if p.y >= 0.0 { 1.0 } else { -1.0 },
-        );
-        p = (Vec2::ONE - Vec2::new(p.y.abs(), p.x.abs())) * s;
-    }
-    p * 0.5 + Vec2::splat(0.5)
-}
-
-/// Inverse of [`octahedral_encode`].
-pub fn octahedral_decode(uv: Vec2) -> Vec3 {
-    let p = uv * 2.0 - Vec2::ONE;
-    let y = 1.0 - p.x.abs() - p.y.abs();
-    let (x, z) = if y < 0.0 {
-        // The lower hemisphere is folded over the square's corners; unfold it.
-        (
-            (1.0 - p.y.abs()) * p.x.signum(),
-            (1.0 - p.x.abs()) * p.y.signum(),
-        )
-    } else {
-        (p.x, p.y)
-    };
-    Vec3::new(x, y, z).normalize()
-}
-
-/// Bin of a unit normal in the B × B octahedral grid (`side` = B).
-pub fn bin_of(n: Vec3, side: u32) -> u32 {
-    let uv = octahedral_encode(n) * side as f32;
-    let i = (uv.x as u32).min(side - 1);
-    let j = (uv.y as u32).min(side - 1);
-    j * side + i
 }
 
 /// Per draw, (offset, count) into `list` of the groups that can reach the draw's normal cone; then
@@ -770,20 +731,7 @@ impl ShadingPass {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn octahedral_round_trip() {
-        for k in 0..500 {
-            // Fibonacci sphere directions.
-            let y = 1.0 - 2.0 * (k as f32 + 0.5) / 500.0;
-            let phi = k as f32 * 2.399_963;
-            let r = (1.0 - y * y).sqrt();
-            let d = Vec3::new(r * phi.cos(), y, r * phi.sin());
-            let uv = octahedral_encode(d);
-            let back = octahedral_decode(uv);
-            assert!(d.dot(back) > 0.99999, "{d} -> {uv} -> {back}");
-        }
-    }
+    use crate::render::cluster::Clusterer;
 
     #[test]
     fn a_light_below_a_draws_cone_is_culled_and_one_above_is_kept() {
@@ -806,7 +754,7 @@ mod tests {
             light(1, Vec3::new(0.0, -(5f32.to_radians().tan()), 1.0)),
             light(2, Vec3::new(0.2, 1.0, 0.0)),
         ];
-        let mut c = super::super::cluster::Clusterer::new(0.0);
+        let mut c = Clusterer::new(0.0);
         let mut g = Grouping::default();
         c.group(&lights, &mut g);
         let (mut lists, mut list) = (Vec::new(), Vec::new());
@@ -814,17 +762,5 @@ mod tests {
         let [off, n] = lists[0];
         assert_eq!(&list[off as usize..(off + n) as usize], &[1, 2]);
         assert_eq!(lists.last().unwrap()[1], 3);
-    }
-
-    #[test]
-    fn bins_cover_the_grid() {
-        let mut seen = vec![false; (BIN_SIDE * BIN_SIDE) as usize];
-        for k in 0..20000 {
-            let y = 1.0 - 2.0 * (k as f32 + 0.5) / 20000.0;
-            let phi = k as f32 * 2.399_963;
-            let r = (1.0 - y * y).sqrt();
-            seen[bin_of(Vec3::new(r * phi.cos(), y, r * phi.sin()), BIN_SIDE) as usize] = true;
-        }
-        assert!(seen.iter().all(|&s| s));
     }
 }

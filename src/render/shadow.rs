@@ -1,14 +1,19 @@
 //! Shadow maps: one orthographic depth map per light group, in one depth texture array
 //! (ALGORITHMS.md §6), with reuse while a group's direction stays put.
 //!
-//! Input: the frame's [`Group`]s (a direction and a stable key each). Output: for each group the
-//! layer and the world → shadow-clip matrix the shading pass samples with, and the depth passes that
-//! (re)draw the layers that need it. A layer is redrawn when its group is new, when reuse is off, or
-//! when the group's axis has moved more than ε since the layer was drawn; otherwise the old map and
-//! its old matrix stay in use, which is exact for a steady light and off by at most ε for a moving one.
+//! Input: the frame's [`Group`]s (a direction and a stable key each) and the shadow casters of the
+//! scene's device buffers ([`SceneBuffers`]). Output: per group a [`GroupShadow`] (its layer and the
+//! direction the layer was drawn from; the projection follows from that and the [`ShadowFit`]) for
+//! the shading pass to sample with, and the depth passes that (re)draw the layers that need it.
+//! Uses `scene`, `cluster` and `gpu`.
+//!
+//! A layer is redrawn when its group is new, when reuse is off, or when the group's axis has moved
+//! more than ε since the layer was drawn; otherwise the old map and its old direction stay in use,
+//! which is exact for a steady light and off by at most ε for a moving one.
 
 use super::cluster::Group;
-use super::scene::{DrawRange, Scene, Vertex};
+use super::gpu::Gpu;
+use super::scene::{Scene, SceneBuffers, Vertex};
 use glam::Vec3;
 use std::collections::HashMap;
 
@@ -178,7 +183,7 @@ pub struct ShadowMaps {
 }
 
 impl ShadowMaps {
-    pub fn new(gpu: &super::gpu::Gpu, fit: ShadowFit, size: u32) -> ShadowMaps {
+    pub fn new(gpu: &Gpu, fit: ShadowFit, size: u32) -> ShadowMaps {
         let device = gpu.device.clone();
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("shadow.wgsl"),
@@ -520,42 +525,6 @@ impl ShadowMaps {
             pass.draw_indexed(scene.casters.clone(), 0, layer..layer + 1);
         }
         self.redraw.len() as u32
-    }
-}
-
-/// The scene's vertex and index buffers on the device.
-pub struct SceneBuffers {
-    pub vertices: wgpu::Buffer,
-    /// Indices bucketed by normal bin ([`Scene::bucketed`]), casters first.
-    pub indices: wgpu::Buffer,
-    /// Index range of the shadow casters, and of everything.
-    pub casters: std::ops::Range<u32>,
-    pub all: std::ops::Range<u32>,
-    /// The draws of the shading pass, each with its normal cone.
-    pub draws: Vec<DrawRange>,
-}
-
-impl SceneBuffers {
-    pub fn new(device: &wgpu::Device, scene: &Scene) -> SceneBuffers {
-        use wgpu::util::DeviceExt;
-        let (casters, all) = scene.index_ranges();
-        let (indices, draws) = scene.bucketed(super::shading::BIN_SIDE);
-        debug_assert_eq!(indices.len(), scene.indices.len());
-        SceneBuffers {
-            vertices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("scene vertices"),
-                contents: bytemuck::cast_slice(&scene.vertices),
-                usage: wgpu::BufferUsages::VERTEX,
-            }),
-            indices: device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("scene indices"),
-                contents: bytemuck::cast_slice(&indices),
-                usage: wgpu::BufferUsages::INDEX,
-            }),
-            casters,
-            all,
-            draws,
-        }
     }
 }
 

@@ -1,7 +1,8 @@
 //! The tonemap pass: linear HDR target → the display format (`shaders/tonemap.wgsl`).
 //!
 //! Input: the shading pass's HDR view. Output: the frame in the target's format (sRGB encoded on
-//! store), on which the overlay is drawn.
+//! store), on which the overlay is drawn. The curve is 1 − exp(−c) per channel of the exposed
+//! radiance c (docs/RENDER.md); the renderer chooses the exposure. A leaf of the render tree.
 
 pub struct TonemapPass {
     device: wgpu::Device,

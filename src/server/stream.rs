@@ -6,6 +6,7 @@
 
 use super::{ApiError, AppState, parse_param};
 use crate::daemon::Subscription;
+use crate::lightset::SUBPROTOCOL;
 use crate::metrics::Metrics;
 use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade, close_code};
@@ -18,9 +19,6 @@ use std::sync::Arc;
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::Duration;
 use tokio::time::{Instant, MissedTickBehavior};
-
-/// The WebSocket subprotocol of this wire format.
-pub const SUBPROTOCOL: &str = "vemlight.v1";
 
 /// Largest message a client may send (bytes).
 const CLIENT_MESSAGE_LIMIT: usize = 64 * 1024;

@@ -5,9 +5,11 @@
 //! prefix to draw, with the energy of the lights left out handed to their nearest kept light, so
 //! that Σ irradiance, and with it the image's overall brightness, does not change with the count
 //! (DESIGN.md: a prefix of the progressive set is itself well stratified, so the nearest kept light
-//! stands for a dropped light's region about as its Voronoi cell would).
+//! stands for a dropped light's region about as its Voronoi cell would). `LightState` is what the
+//! frame loops hold: the newest set, and the prefix of it the [`Renderer`] draws.
 
 use crate::lights::Light;
+use crate::render::renderer::Renderer;
 use glam::Vec3;
 
 /// The first `n` lights by id, each carrying the irradiance of the dropped lights nearest to it.
@@ -95,6 +97,48 @@ impl LightBudget {
         }
         self.count = self.count.min(available.max(Self::MIN_LIGHTS));
         self.count
+    }
+}
+
+/// The frame loop's lights: applies each new set to the renderer, through the light budget when
+/// `--target-fps` sets one.
+pub(crate) struct LightState {
+    all: Vec<Light>,
+    drawn: Vec<Light>,
+    budget: Option<LightBudget>,
+}
+
+impl LightState {
+    pub(crate) fn new(target_fps: Option<f32>, lights: usize) -> Self {
+        LightState {
+            all: Vec::new(),
+            drawn: Vec::new(),
+            budget: target_fps.map(|f| LightBudget::new(f, lights)),
+        }
+    }
+
+    /// A new set arrived.
+    pub(crate) fn set(&mut self, renderer: &mut Renderer, lights: &[Light]) {
+        self.all.clear();
+        self.all.extend_from_slice(lights);
+        self.apply(renderer);
+    }
+
+    fn apply(&mut self, renderer: &mut Renderer) {
+        let n = self.budget.as_ref().map_or(self.all.len(), |b| b.count());
+        prefix_with_energy(&self.all, n, &mut self.drawn);
+        renderer.set_lights(&self.drawn);
+    }
+
+    /// A frame took `ms`: maybe change the count.
+    pub(crate) fn frame_time(&mut self, renderer: &mut Renderer, ms: f32) {
+        let available = self.all.len();
+        if let Some(b) = &mut self.budget {
+            let before = b.count().min(available);
+            if b.update(ms, available) != before {
+                self.apply(renderer);
+            }
+        }
     }
 }
 

@@ -3,12 +3,13 @@
 //!
 //! Input: [`ViewArgs`]. Output: a window; closes on Escape or the window's close button.
 
-use super::gpu::Gpu;
-use super::overlay::Status;
-use super::scene::Scene;
+use super::adaptive::LightState;
+use super::args::{ViewArgs, camera_at};
 use super::source::{LightFeed, Source};
-use super::view::{LightState, ViewArgs, camera_at};
-use super::{Options, Renderer};
+use crate::render::gpu::Gpu;
+use crate::render::overlay::Status;
+use crate::render::renderer::{Options, Renderer};
+use crate::render::scene::Scene;
 use std::sync::Arc;
 use std::time::Instant;
 use winit::application::ApplicationHandler;
@@ -41,24 +42,21 @@ struct App {
     error: Option<anyhow::Error>,
 }
 
-/// Opens the window and runs until it is closed.
 /// The window's size unless `--size` says otherwise (shadow maps are sized for it, see
 /// `shadow::shadow_size_for`; a later resize keeps them).
 const DEFAULT_SIZE: (u32, u32) = (960, 540);
 
-pub fn run(args: ViewArgs) -> anyhow::Result<()> {
+/// Opens the window and runs until it is closed.
+pub(super) fn run(args: ViewArgs) -> anyhow::Result<()> {
     let feed = LightFeed::open(&Source::parse(&args.source), args.lights)?;
-    let mesh = match &args.mesh {
-        Some(p) => super::scene::Mesh::load_obj(p)?,
-        None => super::scene::Mesh::builtin_bunny(),
-    };
+    let scene = args.scene()?;
     let event_loop = EventLoop::new()
         .map_err(|e| anyhow::anyhow!("cannot open a window ({e}); try --headless"))?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App {
         options: args.options(args.size.unwrap_or(DEFAULT_SIZE)),
         lights: LightState::new(args.target_fps, args.lights),
-        scene: Scene::showcase(&mesh),
+        scene,
         feed,
         args,
         live: None,

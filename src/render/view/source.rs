@@ -5,11 +5,12 @@
 //! The stream runs a blocking `tungstenite` client on a background thread with latest-state
 //! semantics: the render loop takes the newest set and never waits on the network. When the
 //! connection drops the feed keeps the last set (the viewer goes on drawing it, marked stale) and
-//! reconnects with exponential backoff.
+//! reconnects with exponential backoff. The wire format (the document, its subprotocol) comes from
+//! [`crate::lightset`]; the client imports nothing of the server (DESIGN.md, "The wire format").
 
 use crate::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use crate::lights::Extractor;
-use crate::lightset::{LightRequest, LightSet, lightset_for_map};
+use crate::lightset::{LightRequest, LightSet, SUBPROTOCOL, lightset_for_map};
 use anyhow::{Context, bail};
 use std::io::ErrorKind;
 use std::net::TcpStream;
@@ -19,8 +20,6 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-/// The WebSocket subprotocol of the wire format (the server's constant).
-pub use crate::server::stream::SUBPROTOCOL;
 /// Where `vemlight serve` listens by default.
 pub const DEFAULT_STREAM: &str = "ws://127.0.0.1:7878/v1/stream";
 
