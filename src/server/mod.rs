@@ -6,12 +6,14 @@
 //! builds the router, so the binary and the tests serve the same thing.
 //!
 //! This file holds the shared state, the router and the small handlers; the rest is one concern a
-//! file: `accept` (the accept loop and graceful shutdown), `auth` (the bearer token), `stream` (the WebSocket feed), `uploads` (`POST /v1/lights`) and
+//! file: `accept` (the accept loop and graceful shutdown), `auth` (the bearer token), `query` (the
+//! typed query parameters), `stream` (the WebSocket feed), `uploads` (`POST /v1/lights`) and
 //! `error` (the one error type, a problem document).
 
 mod accept;
 mod auth;
 pub mod error;
+pub mod query;
 pub mod stream;
 mod uploads;
 
@@ -21,12 +23,12 @@ pub use uploads::Uploads;
 
 use crate::capture::pipeline::Hub;
 use axum::Router;
-use axum::extract::{Query, State};
+use axum::extract::State;
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::middleware;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
-use std::collections::HashMap;
+use query::{LatestQuery, Params};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -172,22 +174,6 @@ pub fn app(state: AppState) -> Router {
     }
 }
 
-/// Parses an optional query parameter, with a 400 naming it when malformed.
-pub fn parse_param<T: std::str::FromStr>(
-    q: &HashMap<String, String>,
-    name: &str,
-) -> Result<Option<T>, ApiError>
-where
-    T::Err: std::fmt::Display,
-{
-    q.get(name)
-        .map(|v| {
-            v.parse::<T>()
-                .map_err(|e| ApiError::BadRequest(format!("query parameter {name}='{v}': {e}")))
-        })
-        .transpose()
-}
-
 /// `GET /`: the live view (src/server/viewer.html), a browser client of `/v1/stream`. A static
 /// page, so it needs no token; it passes its own `?access_token=` on to the stream.
 async fn viewer() -> Response {
@@ -267,11 +253,10 @@ async fn metrics(State(state): State<AppState>) -> Response {
 /// `GET /v1/lights/latest[?lights=N]`: the newest published set (default light count, or N,
 /// waiting up to two frames' worth of time for a count not yet being computed).
 async fn latest(
-    Query(q): Query<HashMap<String, String>>,
+    Params(q): Params<LatestQuery>,
     State(state): State<AppState>,
 ) -> Result<Response, ApiError> {
-    let lights = parse_param::<usize>(&q, "lights")?;
-    let published = match lights {
+    let published = match q.lights {
         None => state.hub.latest(),
         Some(n) if n == state.hub.default_lights() => state.hub.latest(),
         Some(n) => {

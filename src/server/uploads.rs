@@ -11,18 +11,17 @@
 //! repeated same-size uploads cheap. A refused body is drained a little (unless the client sent
 //! `Expect: 100-continue`), so that a client still sending reads the answer.
 
-use super::{ApiError, AppState, json_response, parse_param};
+use super::query::{Params, UploadQuery};
+use super::{ApiError, AppState, json_response};
 use crate::envmap::{Decoding, EnvMap, Projection};
-use crate::lights::{Extractor, Method};
+use crate::lights::Extractor;
 use crate::lightset::{LightRequest, lightset_for_map, now_ns};
 use crate::metrics::Metrics;
-use crate::sampling::Domain;
 use axum::body::Body;
-use axum::extract::{Query, State};
+use axum::extract::State;
 use axum::http::{HeaderMap, header};
 use axum::response::Response;
 use futures_util::StreamExt;
-use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use tokio::sync::Semaphore;
@@ -85,15 +84,18 @@ fn kib(bytes: usize) -> usize {
 }
 
 /// `POST /v1/lights`: a raw EXR or Radiance HDR body → the same LightSet `vemlight lights` gives.
+///
+/// The query is taken as a `Result` so that a bad one is counted in
+/// `vemlight_http_lights_errors_total` and its body drained, like every other refusal.
 pub(super) async fn post_lights(
-    Query(q): Query<HashMap<String, String>>,
+    query: Result<Params<UploadQuery>, ApiError>,
     State(state): State<AppState>,
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
     let metrics = state.hub.metrics.clone();
     Metrics::inc(&metrics.http_lights_requests);
-    let result = post_lights_inner(q, &state, &headers, body).await;
+    let result = post_lights_inner(query, &state, &headers, body).await;
     if result.is_err() {
         Metrics::inc(&metrics.http_lights_errors);
     }
@@ -101,7 +103,7 @@ pub(super) async fn post_lights(
 }
 
 async fn post_lights_inner(
-    q: HashMap<String, String>,
+    query: Result<Params<UploadQuery>, ApiError>,
     state: &AppState,
     headers: &HeaderMap,
     body: Body,
@@ -110,7 +112,7 @@ async fn post_lights_inner(
     let mut stream = body.into_data_stream();
     // Parameters first: a bad request is refused without reading its body (the drain only lets
     // a client that is still sending read the answer).
-    let (req, projection) = match upload_request(&q, headers) {
+    let (req, projection) = match upload_request(query, headers) {
         Ok(r) => r,
         Err(e) => {
             drain_unless_waiting(headers, &mut stream).await;
@@ -213,24 +215,21 @@ async fn post_lights_inner(
 
 /// The query and headers of an upload, checked.
 fn upload_request(
-    q: &HashMap<String, String>,
+    query: Result<Params<UploadQuery>, ApiError>,
     headers: &HeaderMap,
 ) -> Result<(LightRequest, Option<Projection>), ApiError> {
+    let Params(q) = query?;
     let req = LightRequest {
-        lights: parse_param(q, "lights")?.unwrap_or(64),
-        domain: parse_param::<Domain>(q, "domain")?,
-        method: parse_param::<Method>(q, "method")?.unwrap_or_default(),
-        max_error: parse_param(q, "max_error")?,
+        lights: q.lights.unwrap_or(64),
+        domain: q.domain,
+        method: q.method.unwrap_or_default(),
+        max_error: q.max_error,
         estimate_error: true,
         sh9: true,
     };
     req.validate().map_err(ApiError::BadRequest)?;
-    let projection = q
-        .get("projection")
-        .map(|p| Projection::parse(p).map_err(ApiError::BadRequest))
-        .transpose()?;
     acceptable_content_type(headers)?;
-    Ok((req, projection))
+    Ok((req, q.projection))
 }
 
 /// Content types an upload may declare (or none).
