@@ -408,6 +408,64 @@ async fn bad_stream_parameters_are_refused() {
     );
 }
 
+/// A parameter an endpoint does not take (the typo `light` for `lights`) or a value of the wrong
+/// type is refused with a 400 problem document that names it, on every endpoint with a query,
+/// rather than ignored; the stream checks it before the upgrade, and the daemon keeps serving.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unknown_or_malformed_query_parameters_are_named() {
+    use tokio_tungstenite::tungstenite::Error;
+    let s = start_default(30.0).await;
+    let c = reqwest::Client::new();
+    let base = format!("http://{}", s.addr);
+    let night = std::fs::read(data_path("overcast-plaza.exr")).unwrap();
+    for (param, query) in [("light", "light=16"), ("lights", "lights=abc")] {
+        let named = |p: serde_json::Value| {
+            let detail = p["detail"].as_str().unwrap().to_string();
+            assert!(
+                detail.starts_with(&format!("query parameter {param}:")),
+                "{query}: {detail}"
+            );
+            if param == "light" {
+                assert!(detail.contains("unknown field `light`"), "{detail}");
+            }
+        };
+        let latest = c.get(format!("{base}/v1/lights/latest?{query}"));
+        named(problem(latest.send().await.unwrap(), 400).await);
+        let upload = c
+            .post(format!("{base}/v1/lights?{query}"))
+            .body(night.clone());
+        named(problem(upload.send().await.unwrap(), 400).await);
+        // The stream, asked with a WebSocket handshake (without one, that is what it is told).
+        let stream = c
+            .get(format!("{base}/v1/stream?{query}"))
+            .header("connection", "upgrade")
+            .header("upgrade", "websocket")
+            .header("sec-websocket-version", "13")
+            .header("sec-websocket-key", "dGhlIHNhbXBsZSBub25jZQ==")
+            .header("sec-websocket-protocol", "vemlight.v1");
+        named(problem(stream.send().await.unwrap(), 400).await);
+        let url = format!("ws://{}/v1/stream?{query}", s.addr);
+        match tokio_tungstenite::connect_async(url).await {
+            Err(Error::Http(resp)) => assert_eq!(resp.status(), 400, "{query}"),
+            Err(e) => panic!("{query}: {e}"),
+            Ok(_) => panic!("{query} was accepted"),
+        }
+    }
+    // Refused uploads count as errors; the known parameters still work.
+    let m = metrics_text(&c, &base).await;
+    assert!(m.contains("vemlight_http_lights_errors_total 2"), "{m}");
+    let mut ws = connect(s.addr, "?lights=8&max_hz=10", None).await;
+    let set = next_set(&mut ws, Duration::from_secs(5)).await;
+    assert_eq!(set["lights"].as_array().unwrap().len(), 8);
+    let ok = c
+        .post(format!("{base}/v1/lights?lights=8&domain=upper"))
+        .body(night)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(ok.status(), 200);
+}
+
 /// A client waiting out its `max_hz` interval is still answered: its close handshake completes
 /// at once, not when its next set is due.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -2,6 +2,7 @@
 //! in one place.
 
 use crate::envmap::InputError;
+use axum::extract::rejection::QueryRejection;
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 
@@ -47,6 +48,17 @@ impl From<InputError> for ApiError {
                 ApiError::Unprocessable(e.to_string())
             }
         }
+    }
+}
+
+/// A query string that does not fit an endpoint's query struct (src/server/query.rs): 400, with
+/// serde's account of it, which starts with the parameter's name (`lights: invalid digit found in
+/// string`, ``light: unknown field `light`, expected one of `lights`, `max_hz`…``).
+impl From<QueryRejection> for ApiError {
+    fn from(rejection: QueryRejection) -> Self {
+        let cause = std::error::Error::source(&rejection)
+            .map_or_else(|| rejection.body_text(), ToString::to_string);
+        ApiError::BadRequest(format!("query parameter {cause}"))
     }
 }
 

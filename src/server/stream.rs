@@ -4,17 +4,17 @@
 //! frames, never a queue, and never holds up the capture loop or another client. A client that
 //! stops reading for longer than the send timeout is disconnected.
 
-use super::{ApiError, AppState, parse_param};
+use super::query::{Params, StreamQuery};
+use super::{ApiError, AppState};
 use crate::daemon::Subscription;
 use crate::lightset::SUBPROTOCOL;
 use crate::metrics::Metrics;
+use axum::extract::State;
 use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade, close_code};
-use axum::extract::{Query, State};
 use axum::response::Response;
 use futures_util::stream::SplitSink;
 use futures_util::{SinkExt, StreamExt};
-use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::Duration;
@@ -33,10 +33,11 @@ const MIN_MAX_HZ: f64 = 0.001;
 /// Clients send only pongs and close frames.
 const CLIENT_READ_BUFFER: usize = 4 * 1024;
 
-/// Upgrade handler: checks the query, subscribes, hands off.
+/// Upgrade handler: checks the query, subscribes, hands off. Both extractors are taken as
+/// `Result`s so that a request without a handshake is told so first, whatever its query.
 pub async fn stream(
     ws: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
-    Query(q): Query<HashMap<String, String>>,
+    query: Result<Params<StreamQuery>, ApiError>,
     State(state): State<AppState>,
 ) -> Result<Response, ApiError> {
     // A plain GET gets a problem document like every other error, not axum's text.
@@ -49,8 +50,9 @@ pub async fn stream(
             ),
         )
     })?;
-    let lights = parse_param::<usize>(&q, "lights")?.unwrap_or(state.hub.default_lights());
-    let max_hz = parse_param::<f64>(&q, "max_hz")?;
+    let Params(q) = query?;
+    let lights = q.lights.unwrap_or(state.hub.default_lights());
+    let max_hz = q.max_hz;
     if let Some(hz) = max_hz
         && !(hz.is_finite() && hz >= MIN_MAX_HZ)
     {
@@ -67,7 +69,10 @@ pub async fn stream(
         .max_message_size(CLIENT_MESSAGE_LIMIT)
         .max_frame_size(CLIENT_MESSAGE_LIMIT)
         .read_buffer_size(CLIENT_READ_BUFFER)
-        .on_upgrade(move |socket| client_loop(socket, sub, min_interval, state)))
+        .on_upgrade(move |socket| {
+            let clients = state.ws_clients.clone();
+            clients.track_future(client_loop(socket, sub, min_interval, state))
+        }))
 }
 
 /// One client's loop: send each new set (at most every `min_interval`), ping, answer close,
