@@ -10,6 +10,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod capture;
+pub mod cli;
 pub mod daemon;
 pub mod envmap;
 pub mod eval;

@@ -14,10 +14,12 @@ use serde::{Deserialize, Serialize};
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
 /// The part of the sphere that lights are taken from, with its equal-area square parameterisation.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
+#[value(rename_all = "lowercase")]
 pub enum Domain {
     /// The upper hemisphere (+Y), HDS03 square; the square's boundary is the horizon.
+    #[value(alias = "hemisphere")]
     Upper,
     /// The whole sphere, equal-area octahedral square.
     Sphere,
@@ -73,14 +75,10 @@ impl Domain {
 
 impl std::str::FromStr for Domain {
     type Err = String;
+    /// The names `--domain` takes (and the query parameter `domain=`), aliases included.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "upper" | "hemisphere" => Ok(Domain::Upper),
-            "sphere" => Ok(Domain::Sphere),
-            _ => Err(format!(
-                "unknown domain '{s}' (expected 'upper' or 'sphere')"
-            )),
-        }
+        <Domain as clap::ValueEnum>::from_str(s, false)
+            .map_err(|_| format!("unknown domain '{s}' (expected 'upper' or 'sphere')"))
     }
 }
 

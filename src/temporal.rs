@@ -15,28 +15,26 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 /// The kernel family.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
+#[value(rename_all = "lowercase")]
 pub enum FilterKind {
     /// No filtering: each frame's lights as they are.
+    #[value(help = "no filtering")]
     None,
     /// Binomial coefficients C(M−1, n)/2^(M−1): response cos^(M−1)(πf), never negative.
+    #[value(help = "binomial FIR, never overshoots (the default)")]
     Binomial,
     /// Hamming-windowed sinc, h[n] = w[n]·2f_c·sinc(2f_c(n − (M−1)/2)), normalised to Σh = 1.
+    #[value(help = "Hamming-windowed sinc, sharper cut-off (--cutoff-hz)")]
     Sinc,
 }
 
 impl std::str::FromStr for FilterKind {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "none" => Ok(FilterKind::None),
-            "binomial" => Ok(FilterKind::Binomial),
-            "sinc" => Ok(FilterKind::Sinc),
-            _ => Err(format!(
-                "unknown filter '{s}' (expected none, binomial or sinc)"
-            )),
-        }
+        <FilterKind as clap::ValueEnum>::from_str(s, false)
+            .map_err(|_| format!("unknown filter '{s}' (expected none, binomial or sinc)"))
     }
 }
 

@@ -325,11 +325,11 @@ fn bad_arguments_are_refused() {
     assert_fails_with(&vemlight(&["lights", f, "--max-error=-1"]), "positive");
     assert_fails_with(
         &vemlight(&["lights", f, "--method", "magic"]),
-        "unknown method",
+        "invalid value 'magic' for '--method <METHOD>'",
     );
     assert_fails_with(
         &vemlight(&["lights", f, "--domain", "left"]),
-        "unknown domain",
+        "invalid value 'left' for '--domain <DOMAIN>'",
     );
     assert_fails_with(
         &vemlight(&["lights", f, "--projection", "latlong", "--fov", "180"]),
@@ -432,7 +432,10 @@ fn serve_configuration_errors_exit_with_a_message() {
             "cut-off",
         ),
         (vec!["serve", "--sky-size", "100x100"], "2:1"),
-        (vec!["serve", "--filter", "kalman"], "unknown filter"),
+        (
+            vec!["serve", "--filter", "kalman"],
+            "invalid value 'kalman' for '--filter <FILTER>'",
+        ),
         (
             vec!["serve", "--cors-origin", "app.example.com"],
             "is not an origin",
@@ -459,4 +462,61 @@ fn serve_configuration_errors_exit_with_a_message() {
     let addr = taken.local_addr().unwrap().to_string();
     let out = vemlight(&["serve", "--bind", &addr, "--sky-size", "64x32"]);
     assert_fails_with(&out, "cannot listen on");
+}
+
+/// The commands' `--help` lists the values of every enumerated flag (methods, domains, filters,
+/// pixel formats, sources), and a wrong value is answered with them.
+#[test]
+fn help_lists_the_values_of_enumerated_flags() {
+    let help = |cmd: &str| {
+        let out = vemlight(&[cmd, "--help"]);
+        assert!(out.status.success(), "{cmd} --help");
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let lights = help("lights");
+    for value in [
+        "voronoi",
+        "paper",
+        "median-cut",
+        "inverse-cdf",
+        "k-means",
+        "vmlps",
+        "upper",
+        "sphere",
+        "json",
+        "gltf",
+    ] {
+        assert!(lights.contains(value), "lights --help lacks {value}");
+    }
+    let serve = help("serve");
+    for value in [
+        "voronoi",
+        "binomial",
+        "sinc",
+        "none",
+        "rgbf32le",
+        "rgbf16le",
+        "rgb48le",
+        "synthetic",
+        "stdin",
+    ] {
+        assert!(serve.contains(value), "serve --help lacks {value}");
+    }
+    let out = vemlight(&["serve", "--pixel", "rgb24"]);
+    assert_fails_with(&out, "possible values: rgbf32le, rgbf16le, rgb48le");
+    // The old spellings are still taken.
+    let f = data_path("night.exr");
+    let out = vemlight(&[
+        "lights",
+        f.to_str().unwrap(),
+        "-n",
+        "4",
+        "--method",
+        "kmeans",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }

@@ -6,7 +6,8 @@ use crate::envmap::{EnvMap, Projection, sanitize};
 use std::io::Read;
 
 /// Pixel layout of raw frames: three channels, little-endian, row-major from the top row.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[value(rename_all = "lowercase")]
 pub enum RawPixel {
     /// 32-bit float per channel, linear radiance.
     Rgbf32le,
@@ -28,14 +29,9 @@ impl RawPixel {
 impl std::str::FromStr for RawPixel {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "rgbf32le" => Ok(RawPixel::Rgbf32le),
-            "rgbf16le" => Ok(RawPixel::Rgbf16le),
-            "rgb48le" => Ok(RawPixel::Rgb48le),
-            _ => Err(format!(
-                "unknown pixel format '{s}' (expected rgbf32le, rgbf16le or rgb48le)"
-            )),
-        }
+        <RawPixel as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            format!("unknown pixel format '{s}' (expected rgbf32le, rgbf16le or rgb48le)")
+        })
     }
 }
 

@@ -82,25 +82,40 @@ pub fn angular_radius(energy: f64, moment_len: f64) -> f32 {
 }
 
 /// How lights are computed from a map.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "kebab-case")]
+#[value(rename_all = "kebab-case")]
 pub enum Method {
     /// Spherical Voronoi cells around the warped progressive points (our default, ALGORITHMS.md §4).
     #[default]
+    #[value(
+        alias = "default",
+        help = "spherical Voronoi cells of the warped points (the default)"
+    )]
     Voronoi,
     /// The paper's variant: Voronoi cells of the fixed points in the warped unit square.
+    #[value(help = "the paper's cells in the warped unit square")]
     Paper,
     /// Debevec's median cut on a lat-long map (baseline, ALGORITHMS.md §7).
+    #[value(alias = "mediancut", help = "Debevec's median cut (baseline)")]
     MedianCut,
     /// The discontinuous inverse CDF on the lat-long map (pbrt-v3 `Distribution2D`), same fixed
     /// points; lights then exactly as [`Method::Voronoi`] (nearest light on the sphere, centroid).
     /// Baseline, ALGORITHMS.md §7.
+    #[value(alias = "inversecdf", help = "the lat-long inverse CDF (baseline)")]
     InverseCdf,
     /// Converged spherical k-means (Kollig & Keller 2003), k-means++ seeds: the practical floor of
     /// the unshadowed diffuse error (ALGORITHMS.md §10). A baseline: slow, ids not stable.
+    #[value(
+        alias = "kmeans",
+        help = "converged spherical k-means, the diffuse floor (baseline; slow, single maps only)"
+    )]
     KMeans,
     /// Variance-minimising cuts (Viriyothai & Debevec 2009, ALGORITHMS.md §10). A baseline, ids
     /// not stable.
+    #[value(help = "variance-minimising cuts (baseline)")]
     Vmlps,
 }
 
@@ -143,18 +158,13 @@ impl Method {
 
 impl std::str::FromStr for Method {
     type Err = String;
+    /// The names `--method` takes (and the query parameter `method=`), aliases included.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "voronoi" | "default" => Ok(Method::Voronoi),
-            "paper" => Ok(Method::Paper),
-            "median-cut" | "mediancut" => Ok(Method::MedianCut),
-            "inverse-cdf" | "inversecdf" => Ok(Method::InverseCdf),
-            "k-means" | "kmeans" => Ok(Method::KMeans),
-            "vmlps" => Ok(Method::Vmlps),
-            _ => Err(format!(
+        <Method as clap::ValueEnum>::from_str(s, false).map_err(|_| {
+            format!(
                 "unknown method '{s}' (expected voronoi, paper, median-cut, inverse-cdf, vmlps or k-means)"
-            )),
-        }
+            )
+        })
     }
 }
 
