@@ -19,4 +19,5 @@ pub mod metrics;
 pub mod render;
 pub mod sampling;
 pub mod server;
+pub mod sky;
 pub mod temporal;

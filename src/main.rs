@@ -433,7 +433,8 @@ fn make_source(
 ) -> anyhow::Result<Box<dyn vemlight::capture::FrameSource>> {
     use vemlight::capture::files::{DirectorySource, FileSource};
     use vemlight::capture::stdin::RawSource;
-    use vemlight::capture::synthetic::{SwitchLight, SyntheticConfig, SyntheticSource};
+    use vemlight::capture::synthetic::SyntheticSource;
+    use vemlight::sky::{SwitchLight, SyntheticConfig};
     Ok(match args.source.as_str() {
         "synthetic" => {
             let (width, height) = args.sky_size;

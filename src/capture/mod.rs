@@ -1,6 +1,6 @@
 //! Frame sources and the capture pipeline: the first and the last stage of the daemon.
 //!
-//! Input: a [`FrameSource`] ([`synthetic`], the built-in dynamic sky `vemlight serve` uses by
+//! Input: a [`FrameSource`] ([`synthetic`], the built-in [`crate::sky`] `vemlight serve` uses by
 //! default so the daemon runs with no camera and no data; a file; a directory of frames; raw
 //! frames on stdin). Output: filtered LightSet documents, published per light count on `watch` channels
 //! (latest-state semantics: a slow reader skips frames and never holds up the capture loop).
