@@ -23,7 +23,7 @@ use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::protocol::WebSocketConfig;
 use vemlight::capture::files::FileSource;
 use vemlight::capture::stdin::{RawPixel, RawSource};
-use vemlight::capture::synthetic::{SyntheticConfig, SyntheticSky, SyntheticSource};
+use vemlight::capture::synthetic::SyntheticSource;
 use vemlight::capture::{FrameSource, pace};
 use vemlight::daemon::{self, Hub, PipelineConfig};
 use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
@@ -33,6 +33,7 @@ use vemlight::lightset::{LightSet, now_ns};
 use vemlight::metrics::HistogramCounts;
 use vemlight::sampling::Domain;
 use vemlight::server::{AppState, Uploads, WsConfig, run};
+use vemlight::sky::{SyntheticConfig, SyntheticSky};
 use vemlight::temporal::{FilterSpec, TemporalFilter};
 
 const MAP: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/sunrise.exr");

@@ -22,6 +22,7 @@ pub mod metrics;
 pub mod render;
 pub mod sampling;
 pub mod server;
+pub mod sky;
 pub mod temporal;
 
 /// Helpers for the unit tests.

@@ -1,7 +1,7 @@
 //! Frame sources: the first stage of the daemon (DESIGN.md, "The pipeline").
 //!
 //! A [`FrameSource`] yields environment-map frames at its own pace: [`synthetic`], the built-in
-//! dynamic sky `vemlight serve` uses by default so the daemon runs with no camera and no data; a
+//! dynamic sky ([`crate::sky`]) `vemlight serve` uses by default so the daemon runs with no camera and no data; a
 //! file or a directory of frames ([`files`]); raw frames on stdin ([`stdin`]). The daemon's
 //! pipeline ([`crate::daemon`]) takes the frames from here.
 

@@ -240,7 +240,8 @@ fn make_source(
 ) -> anyhow::Result<Box<dyn crate::capture::FrameSource>> {
     use crate::capture::files::{DirectorySource, FileSource};
     use crate::capture::stdin::RawSource;
-    use crate::capture::synthetic::{SwitchLight, SyntheticConfig, SyntheticSource};
+    use crate::capture::synthetic::SyntheticSource;
+    use crate::sky::{SwitchLight, SyntheticConfig};
     Ok(match &args.source {
         SourceArg::Synthetic => {
             let (width, height) = args.sky_size;

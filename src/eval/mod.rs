@@ -14,9 +14,9 @@ pub mod speed;
 pub mod stability;
 pub mod temporal;
 
-use crate::capture::synthetic::{SyntheticConfig, SyntheticSky};
 use crate::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use crate::sampling::Domain;
+use crate::sky::{SyntheticConfig, SyntheticSky};
 use accuracy::{AccuracyRow, COUNTS, SH_NAME, Truth, spread};
 use anyhow::Context;
 use glam::DQuat;

@@ -200,7 +200,7 @@ pub fn scaled(map: &EnvMap, gain: f32) -> EnvMap {
 /// (low and high, clear and hazy, one with clouds), and a room lit by a window and a lamp — the
 /// cases the shared maps have few of.
 pub fn hard_skies(width: usize) -> Vec<(String, EnvMap)> {
-    use crate::capture::synthetic::{SyntheticConfig, SyntheticSky};
+    use crate::sky::{SyntheticConfig, SyntheticSky};
     let sky = |elev: f64, turbidity: f64, clouds: f64| {
         SyntheticSky::new(SyntheticConfig {
             width,
