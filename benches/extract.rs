@@ -9,7 +9,8 @@ use std::hint::black_box;
 use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use vemlight::eval::speed::standard_cases;
 use vemlight::lights::Extractor;
-use vemlight::sampling::{Domain, DomainImage, Resampler};
+use vemlight::mapping::Domain;
+use vemlight::sampling::{DomainImage, Resampler};
 
 fn sunrise_bytes() -> Vec<u8> {
     std::fs::read(concat!(

@@ -8,7 +8,8 @@ use crate::lights::error::IrradianceReference;
 use crate::lights::{
     Extractor, FrameRequest, Light, Method, PrimaryLight, primary_light, total_irradiance,
 };
-use crate::sampling::{Domain, N_MAX};
+use crate::mapping::Domain;
+use crate::sampling::N_MAX;
 use crate::temporal::FilterInfo;
 use serde::{Deserialize, Serialize};
 use std::time::{Instant, SystemTime, UNIX_EPOCH};

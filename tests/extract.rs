@@ -8,7 +8,8 @@ use vemlight::envmap::{EnvMap, Lens, Projection};
 use vemlight::lights::error::IrradianceReference;
 use vemlight::lights::{ExtractOptions, Extractor, FrameRequest, Method, total_irradiance};
 use vemlight::lightset::{LightRequest, lightset_for_map};
-use vemlight::sampling::{Domain, Resampler};
+use vemlight::mapping::Domain;
+use vemlight::sampling::Resampler;
 
 const METHODS: [Method; 6] = Method::ALL;
 

@@ -9,7 +9,7 @@ use vemlight::envmap::EnvMap;
 use vemlight::eval::scenes::angle_deg;
 use vemlight::eval::stability::{CaseKind, HARD_N, hard_cases, violations};
 use vemlight::lights::{ExtractOptions, Extractor, Light, Method, primary_light, total_irradiance};
-use vemlight::sampling::Domain;
+use vemlight::mapping::Domain;
 
 fn extract(
     ex: &mut Extractor,

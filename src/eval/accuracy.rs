@@ -13,7 +13,8 @@ use crate::lights::error::{
     DiffuseError, GLOSSY_EXPONENTS, GlossyReference, IrradianceReference, map_emitters,
 };
 use crate::lights::{ExtractOptions, Extractor, Light, Method, sh};
-use crate::sampling::{Domain, Resampler};
+use crate::mapping::Domain;
+use crate::sampling::Resampler;
 use std::time::Instant;
 
 /// Light counts of the charts: 8 … 1024, powers of two.

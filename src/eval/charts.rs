@@ -6,7 +6,7 @@
 use super::accuracy::{AccuracyRow, SH_NAME, spread};
 use super::temporal::TemporalRow;
 use crate::lights::Method;
-use crate::sampling::Domain;
+use crate::mapping::Domain;
 use anyhow::anyhow;
 use plotters::prelude::*;
 use std::path::Path;

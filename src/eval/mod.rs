@@ -15,7 +15,7 @@ pub mod stability;
 pub mod temporal;
 
 use crate::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
-use crate::sampling::Domain;
+use crate::mapping::Domain;
 use crate::sky::{SyntheticConfig, SyntheticSky};
 use accuracy::{AccuracyRow, COUNTS, SH_NAME, Truth, spread};
 use anyhow::Context;

@@ -9,7 +9,7 @@ use super::accuracy::{AccuracyRow, SHADOW_COUNTS, Truth};
 use super::stability::fmt_pct;
 use crate::envmap::EnvMap;
 use crate::lights::{ExtractOptions, Extractor, Method, Placement};
-use crate::sampling::Domain;
+use crate::mapping::Domain;
 
 /// The rows of one (method, N) on the sphere domain, by map.
 fn row<'a>(

@@ -3,7 +3,7 @@
 
 use crate::envmap::{DEFAULT_MAX_PIXELS, EnvMap, Lens, Projection};
 use crate::lights::{ExtractOptions, Extractor, Method};
-use crate::sampling::Domain;
+use crate::mapping::Domain;
 use std::time::Instant;
 
 /// One timed case: a map, a method and a light count.

@@ -12,7 +12,7 @@ use super::temporal::{Sequence, TemporalRow, run_sequence};
 use crate::envmap::{EnvMap, Projection};
 use crate::lights::error::IrradianceReference;
 use crate::lights::{ExtractOptions, Extractor, Light, Method, total_irradiance};
-use crate::sampling::Domain;
+use crate::mapping::Domain;
 
 /// Light count of the hard cases, except the few-lights case.
 pub const HARD_N: usize = 64;

@@ -26,7 +26,8 @@ use super::scenes::angle_deg;
 use crate::envmap::{EnvMap, luminance64};
 use crate::lights::error::fibonacci_sphere;
 use crate::lights::{ExtractOptions, Extractor, Light, Method, sh};
-use crate::sampling::{Domain, Resampler};
+use crate::mapping::Domain;
+use crate::sampling::Resampler;
 use crate::temporal::{FilterSpec, TemporalFilter};
 use glam::{DVec3, Vec3};
 

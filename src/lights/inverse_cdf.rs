@@ -15,8 +15,9 @@
 //! integral is 0 becomes uniform.
 
 use crate::envmap::{EnvMap, Projection};
+use crate::mapping::Domain;
+use crate::sampling::DomainImage;
 use crate::sampling::resample::LatLongView;
-use crate::sampling::{Domain, DomainImage};
 use glam::{DVec2, DVec3, Vec3};
 use std::f64::consts::PI;
 

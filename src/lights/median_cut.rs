@@ -7,8 +7,9 @@
 
 use super::Light;
 use crate::envmap::{EnvMap, Projection};
+use crate::mapping::Domain;
+use crate::sampling::DomainImage;
 use crate::sampling::resample::LatLongView;
-use crate::sampling::{Domain, DomainImage};
 use glam::DVec3;
 use std::f64::consts::PI;
 

@@ -21,8 +21,9 @@ pub mod sh;
 pub mod vmlps;
 
 use crate::envmap::EnvMap;
+use crate::mapping::Domain;
 use crate::sampling::pointset::voronoi_raster;
-use crate::sampling::{Distribution2D, Domain, DomainImage, N_MAX, Resampler, progressive_points};
+use crate::sampling::{Distribution2D, DomainImage, N_MAX, Resampler, progressive_points};
 use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;

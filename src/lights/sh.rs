@@ -123,7 +123,7 @@ pub fn irradiance(coeffs: &[f64; 27], n: DVec3) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sampling::Domain;
+    use crate::mapping::Domain;
 
     #[test]
     fn constant_sky_has_only_dc_and_exact_irradiance() {

@@ -8,7 +8,6 @@ pub mod distribution;
 pub mod pointset;
 pub mod resample;
 
-pub use crate::mapping::Domain;
 pub use distribution::Distribution2D;
 pub use pointset::{N_MAX, progressive_points};
 pub use resample::{DomainImage, Resampler};

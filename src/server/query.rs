@@ -12,7 +12,7 @@
 use super::ApiError;
 use crate::envmap::Projection;
 use crate::lights::Method;
-use crate::sampling::Domain;
+use crate::mapping::Domain;
 use axum::extract::{FromRequestParts, Query};
 use serde::Deserialize;
 use serde::de::{Deserializer, IgnoredAny};

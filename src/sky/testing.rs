@@ -2,7 +2,7 @@
 //! compare (with the solid angles of envmap.rs, independent of the sky's own grid tables).
 
 use crate::envmap::EnvMap;
-use crate::sampling::Domain;
+use crate::mapping::Domain;
 
 use super::{SyntheticConfig, SyntheticSky, luminance};
 
