@@ -1,4 +1,4 @@
-//! Daemon figures (issue 3): `cargo bench --bench serve`.
+//! Daemon figures: `cargo bench --bench serve` (docs/PERFORMANCE.md).
 //!
 //! 1. End-to-end latency from a frame entering the pipeline to a WebSocket client receiving its
 //!    LightSet, on loopback, p50 and p99, with 1 and 100 clients, frames at 30/s, for three
@@ -231,7 +231,7 @@ async fn post_throughput(
     (times.len() as f64 / start.elapsed().as_secs_f64(), times)
 }
 
-/// The floor under the daemon's fan-out on this machine: a bare tokio-tungstenite server with
+/// The floor under the daemon's fan-out on the same host: a bare tokio-tungstenite server with
 /// no pipeline and no HTTP routing that, from a thread of its own, publishes a message of
 /// `len` bytes every `1/fps` s on a `watch` channel, each client's task sending it on (the
 /// daemon's stream loop without pings, limits or metrics). The message carries the same two

@@ -1,10 +1,12 @@
 //! vemlight: HDR video environment maps → small, temporally stable sets of directional lights.
 //!
-//! Stages (DESIGN.md): [`capture`] produces frames, [`envmap`] decodes and projects, [`sampling`]
-//! resamples into the equal-area domain and warps the fixed progressive points, [`lights`] computes
-//! light power and direction, [`temporal`] filters them over frames, [`lightset`] is the wire
-//! document, [`server`] streams it; [`eval`] measures; [`render`] (feature `render`) is the wgpu
-//! client that draws a scene lit by the lights.
+//! The modules in pipeline order (DESIGN.md, "The pipeline"; each imports only modules above it):
+//! [`mapping`] (the equal-area square ↔ sphere maps, a leaf), [`envmap`] (decoding and
+//! projections), [`sky`] (the synthetic sky model), [`capture`] (frame sources), [`sampling`]
+//! (resampling into the domain square, the warp, the progressive points), [`lights`] (light
+//! power and direction), [`temporal`] (filtering over frames), [`lightset`] (the wire document),
+//! [`daemon`] (the pipeline threads and the hub), [`server`] (HTTP and WebSocket); [`eval`]
+//! measures; [`render`] (feature `render`) is the wgpu client; [`cli`] is the command line.
 
 // Loops over RGB channels and SIMD lanes read more clearly with an index.
 #![allow(clippy::needless_range_loop)]

@@ -191,7 +191,7 @@ impl LightRequest {
     }
 }
 
-/// The domain used when none is asked for (issue 2): the whole sphere for lat-long input, the upper
+/// The domain used when none is asked for (DESIGN.md, "Conventions"): the whole sphere for lat-long input, the upper
 /// hemisphere for cameras that only see it.
 pub fn default_domain(projection: &Projection) -> Domain {
     match projection {

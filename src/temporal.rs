@@ -314,7 +314,7 @@ mod tests {
         }
     }
 
-    /// Jitter at 10 Hz in a 30 frames/s stream is attenuated by at least 20 dB (issue 3), measured
+    /// Jitter at 10 Hz in a 30 frames/s stream is attenuated by at least 20 dB (the daemon's target), measured
     /// on a light's direction and power, not just on the kernel's formula.
     #[test]
     fn ten_hertz_jitter_at_thirty_fps_is_attenuated_20_db() {

@@ -26,7 +26,7 @@ fn rel(a: f64, b: f64) -> f64 {
     (a - b).abs() / b.abs().max(1e-30)
 }
 
-/// Issue 2, part 2: the domain square's ∫L dω matches the input's within 0.5 % on every map.
+/// The domain square's ∫L dω matches the input's within 0.5 % on every map.
 #[test]
 fn resampling_preserves_the_integral_on_every_map() {
     for name in MAPS {
@@ -153,7 +153,7 @@ fn energy_is_conserved_on_every_map_and_method() {
 }
 
 /// Diffuse irradiance error against brute force over the full-resolution map falls with N and is
-/// ≤ 2 % at N = 64 on every map for the default method (issue 2 acceptance).
+/// ≤ 2 % at N = 64 on every map for the default method.
 #[test]
 fn default_method_error_falls_with_n_and_meets_two_percent_at_64() {
     let mut ex = Extractor::new();
@@ -542,7 +542,7 @@ fn every_map() -> Vec<(String, vemlight::envmap::EnvMap)> {
     maps
 }
 
-/// Issue 15: every light carries energy, and N lights asked for are N distinct lights, on every
+/// Every light carries energy, and N lights asked for are N distinct lights, on every
 /// map (the sunny skies are where seeds used to pile onto the sun and leave lights dead), every
 /// count and both domains.
 #[test]
@@ -608,7 +608,7 @@ fn a_map_with_few_lit_texels_gives_fewer_lights_and_says_so() {
     assert!(rel(sum[0], truth[0]) < 1e-4);
 }
 
-/// Issue 15: the default's diffuse error is at most median cut's on every map of tests/data at
+/// The default's diffuse error is at most median cut's on every map of tests/data at
 /// every N from 16 to 256 (per map, not in the median).
 #[test]
 fn default_diffuse_is_at_most_median_cuts_on_every_map() {

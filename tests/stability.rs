@@ -1,4 +1,4 @@
-//! Invariants of every method on every hard case of the stability table (issue 5): finite output,
+//! Invariants of every method on every hard case of the stability table: finite output,
 //! energy conserved, every light inside the domain, ids stable over a sequence for the ordered
 //! methods. The assertions are written here, independently of `eval::stability::violations`.
 
@@ -181,7 +181,7 @@ fn default_method_tracks_the_sun_across_the_seam_and_the_zenith() {
     }
 }
 
-/// Issue 15: under a slow yaw (0.25°/frame) of every map in tests/data, the default's raw flicker
+/// Under a slow yaw (0.25°/frame) of every map in tests/data, the default's raw flicker
 /// ratio stays within a bound and below median cut's, per map (not in the median), and no light
 /// id moves more than 15° in a frame (the video mode's worst over 96 frames in `vemlight eval`
 /// is 12°; warping the points afresh each frame, 20–60°).

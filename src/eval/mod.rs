@@ -283,7 +283,7 @@ fn rotations_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence
     ]
 }
 
-/// The temporal sequences of issue 5, rendered on demand.
+/// The temporal sequences (ALGORITHMS.md §11), rendered on demand.
 fn sequences_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence<'a>> {
     let on_frame = frames / 2;
     let lamp = with_lamp(map, dir_from_elev_azim(25.0, -120.0), 2.0, 0.25);
@@ -320,7 +320,7 @@ fn sequences_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence
     seqs
 }
 
-/// The accuracy table: median over maps at N = 16, 64, 256, and the targets of issue 5.
+/// The accuracy table: median over maps at N = 16, 64, 256, and the targets of docs/EVALUATION.md.
 fn accuracy_markdown(rows: &[AccuracyRow], domains: &[Domain]) -> String {
     let mut s = String::new();
     let show: Vec<usize> = [16, 64, 256]
@@ -371,7 +371,7 @@ fn accuracy_markdown(rows: &[AccuracyRow], domains: &[Domain]) -> String {
                 );
             }
         }
-        // Targets of issue 5 (default vs median cut, median over maps).
+        // The targets (default vs median cut, median over maps).
         s += "\nTargets (default `voronoi` against `median-cut`, median over maps):\n\n| N | diffuse voronoi | diffuse median cut | ≤ ? | glossy 32 voronoi / mc | glossy 128 voronoi / mc | ≤ ? (N ≥ 64) |\n|---|---|---|---|---|---|---|\n";
         let med = |m: &str, n: usize, f: &dyn Fn(&AccuracyRow) -> Option<f64>| {
             spread(rows, domain, m, Some(n), f)

@@ -29,7 +29,7 @@ pub struct Timing {
     pub ratio_to_bare_baseline: Option<f64>,
 }
 
-/// The cases of issue 2: a 640×480 fisheye and a 1024×512 lat-long, 256 lights, every method.
+/// The standard speed cases: a 640×480 fisheye and a 1024×512 lat-long, 256 lights, every method.
 pub fn standard_cases(latlong: &EnvMap, lights: usize) -> Vec<Case> {
     let fisheye = latlong.reproject(
         Projection::Fisheye {

@@ -33,7 +33,7 @@ pub struct HardCase {
     pub kind: CaseKind,
 }
 
-/// The hard cases of issue 5, deterministic.
+/// The hard cases of the stability table, deterministic.
 pub fn hard_cases() -> Vec<HardCase> {
     let dirs = LatLongDirs::new(HARD_W, HARD_H);
     let sunny = SunSky {
