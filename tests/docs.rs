@@ -1,6 +1,6 @@
 //! The code's citations of the design documents resolve: every `ALGORITHMS.md §n` (and `§n.m`)
-//! names a section of docs/ALGORITHMS.md, and every DESIGN.md citation of a quoted heading a
-//! docs/DESIGN.md, so a reader can follow each one.
+//! names a section of docs/ALGORITHMS.md, and every heading quoted after DESIGN.md is one of
+//! docs/DESIGN.md's, so a reader can follow each one.
 
 use std::path::{Path, PathBuf};
 
