@@ -2,7 +2,7 @@
 # The project's one test command (README.md, .ci/run): installs what the tests need when it is
 # missing — Mesa's software Vulkan driver, for the headless rendering tests, and Chromium, for the
 # live view's browser test — then builds and runs every test once, in release mode (the
-# extraction tests crunch real HDR maps).
+# extraction tests crunch real HDR maps). Arguments go to `cargo test` (a filter, say).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -30,5 +30,18 @@ export VEMLIGHT_REQUIRE_BROWSER=1
 
 # Mesa warns without a runtime dir; a private one is enough.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
+
+# A whole run (no test filter given) also builds the benchmarks, so one that no longer compiles
+# fails here, and runs the two commands behind the docs' figures once, small: `vemlight bench`
+# (two short rounds) and `vemlight eval --quick`, writing into a scratch folder, not docs/.
+if [ $# -eq 0 ]; then
+  cargo bench --no-run
+  cargo build --release
+  scratch="$(mktemp -d)"
+  cp docs/EVALUATION.md "$scratch/"
+  target/release/vemlight bench --rounds 2 --per-round 3
+  target/release/vemlight eval --quick --out "$scratch" --doc "$scratch/EVALUATION.md"
+  rm -rf "$scratch"
+fi
 
 exec cargo test --release "$@"
