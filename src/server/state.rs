@@ -1,6 +1,7 @@
-//! The state every handler shares: [`AppState`] (the hub, the token, the upload limits, WebSocket
-//! timing, CORS origins) and its parts. A leaf of the server: the handlers, the router and the
-//! accept loop import it, it imports none of them.
+//! The state every handler shares: [`AppState`] (the hub, the token, the upload limits and
+//! extractor pool, WebSocket timing, CORS origins) and its parts. The handlers and the router
+//! import it; it imports only the error type and the accept loop's default timeout, so nothing
+//! it serves imports it back.
 
 use super::accept::HEADER_READ_TIMEOUT;
 use super::error::ApiError;
