@@ -164,7 +164,7 @@ impl SyntheticSky {
     /// fades toward the horizon) × the cloud transmittance in front of it; 0 once the whole disk
     /// has set. The part of the disk below the horizon is hidden by the ground, so the map holds
     /// radiance × the visible part of [`Self::sun_solid_angle`]. Scale: the sun's ∫ L dω is
-    /// [`SUN_TO_SKY_RATIO`] × the clear sky's at noon (≈ 840 vs ≈ 70 model units at turbidity 3).
+    /// [`SUN_TO_SKY_RATIO`](super::SUN_TO_SKY_RATIO) × the clear sky's at noon (≈ 840 vs ≈ 70 model units at turbidity 3).
     pub fn sun_radiance(&self, t: f64) -> [f32; 3] {
         self.sun.radiance(self.sun_direction(t), &self.clouds, t)
     }
