@@ -1,6 +1,6 @@
 //! `vemlight lights FILE`: one map → one LightSet (or glTF) on stdout.
 
-use super::{ExtractionArgs, ProjectionArgs};
+use super::args::{ExtractionArgs, ProjectionArgs};
 use crate::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use crate::lights::Extractor;
 use crate::lightset::{LightRequest, lightset_for_map, to_gltf};

@@ -1,7 +1,7 @@
 //! `vemlight serve`: the capture daemon — a frame source, the pipeline threads and the HTTP /
 //! WebSocket server, until SIGINT or SIGTERM.
 
-use super::{ExtractionArgs, ProjectionArgs};
+use super::args::{ExtractionArgs, ProjectionArgs};
 use crate::envmap::{DEFAULT_MAX_PIXELS, Projection};
 use crate::lights::Method;
 use anyhow::{Context, bail};

@@ -9,7 +9,7 @@
 //! (e + 1)/(2π)·max(0, r·ω)^e around the reflection r of the fixed view direction [`glossy_view`]
 //! about each normal that faces the viewer (n·v > 0), ground truth by brute force over the pixels.
 
-use super::Light;
+use super::light::Light;
 use crate::envmap::EnvMap;
 use crate::sampling::DomainImage;
 use glam::{DVec3, Vec3};

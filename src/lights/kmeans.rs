@@ -9,7 +9,7 @@
 //! so the floor is deterministic. Not a streaming method: it iterates up to [`MAX_ITERATIONS`]
 //! assignment passes per frame and its ids follow no progressive point.
 
-use super::Light;
+use super::light::Light;
 use crate::sampling::DomainImage;
 use glam::Vec3;
 

@@ -5,7 +5,7 @@
 //! Regions are split along their longer side (width scaled by the cosine of latitude) at the point
 //! of half energy, found with a summed-area table so each split costs O(log size).
 
-use super::Light;
+use super::light::Light;
 use crate::envmap::{EnvMap, Projection};
 use crate::mapping::Domain;
 use crate::sampling::DomainImage;
@@ -103,7 +103,7 @@ impl LatLong {
 /// energy, as every method must.
 pub(super) fn rescale_to_domain(lights: &mut [Light], image: &DomainImage) {
     let want = image.integral();
-    let got = super::total_irradiance(lights);
+    let got = super::light::total_irradiance(lights);
     for l in lights {
         for c in 0..3 {
             if got[c] > 0.0 {
@@ -227,7 +227,7 @@ impl MedianCut {
                         .to_array(),
                     irradiance: rgb.map(|v| v as f32),
                     solid_angle: sr as f32,
-                    angular_radius: super::angular_radius(lum, dir.length()),
+                    angular_radius: super::light::angular_radius(lum, dir.length()),
                 }
             })
             .collect();

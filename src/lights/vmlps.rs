@@ -8,7 +8,7 @@
 //! every candidate cut O(1). The region with the largest variance is split next, so any N works
 //! (not only powers of two).
 
-use super::Light;
+use super::light::Light;
 use super::median_cut::{LatLong, rescale_to_domain};
 use crate::envmap::EnvMap;
 use crate::sampling::DomainImage;
@@ -136,7 +136,7 @@ impl Vmlps {
                     to_light: dir.as_vec3().to_array(),
                     irradiance: rgb.map(|v| v as f32),
                     solid_angle: sr as f32,
-                    angular_radius: super::angular_radius(p, m.length()),
+                    angular_radius: super::light::angular_radius(p, m.length()),
                 }
             })
             .collect();

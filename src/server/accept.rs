@@ -1,4 +1,4 @@
-//! The daemon's accept loop: HTTP/1.1 connections (with WebSocket upgrades) served by [`app`],
+//! The daemon's accept loop: HTTP/1.1 connections (with WebSocket upgrades) served by a router,
 //! each held to a header read timeout, and a graceful shutdown on SIGINT or SIGTERM (README.md
 //! "The capture daemon": every WebSocket client gets its close frame and requests in hand finish,
 //! for at most [`SHUTDOWN_GRACE`]).
@@ -7,35 +7,37 @@
 //! [`HEADER_READ_TIMEOUT`], without which connections that trickle in a header, or open and say
 //! nothing, pile up.
 
-use super::{AppState, app};
+use crate::daemon::Hub;
+use std::sync::Arc;
 use std::time::Duration;
+use tokio_util::task::TaskTracker;
 
 /// How long open requests and WebSocket clients get to finish once shutdown has begun.
 pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
 
 /// A connection must send a request's whole header within this time (and an idle kept-alive
 /// connection is closed after it), so that connections that trickle in headers or say nothing
-/// cannot pile up ([`AppState::header_read_timeout`]).
+/// cannot pile up ([`AppState::header_read_timeout`](super::AppState::header_read_timeout)).
 pub const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(10);
 
-/// Serves [`app`] on `listener` over HTTP/1.1 (with WebSocket upgrades) until `shutdown`
-/// resolves, then shuts the hub down (streams get a close frame, the pipeline stops) and returns
-/// once open requests have finished and every WebSocket client has gone, or after
-/// [`SHUTDOWN_GRACE`]: a client that stalls mid-upload does not hold the daemon up.
+/// Serves `router` on `listener` over HTTP/1.1 (with WebSocket upgrades) until `shutdown`
+/// resolves, each connection held to `header_read_timeout`; then shuts `hub` down (streams get a
+/// close frame, the pipeline stops) and returns once open requests have finished and every
+/// WebSocket client in `ws_clients` has gone, or after [`SHUTDOWN_GRACE`].
 ///
 /// Every connection gets TCP_NODELAY: a LightSet is written as a few
 /// small frames, and Nagle's algorithm would hold them back for the peer's delayed ACK
 /// (measured: p99 delivery 9 ms on loopback without it).
-pub async fn run(
+pub async fn serve(
     listener: tokio::net::TcpListener,
-    state: AppState,
+    router: axum::Router,
+    hub: Arc<Hub>,
+    ws_clients: TaskTracker,
+    header_read_timeout: Duration,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
     use hyper_util::rt::{TokioIo, TokioTimer};
-    let hub = state.hub.clone();
-    let header_read_timeout = state.header_read_timeout;
-    let ws_clients = state.ws_clients.clone();
-    let service = hyper_util::service::TowerToHyperService::new(app(state));
+    let service = hyper_util::service::TowerToHyperService::new(router);
     let stop = hub.shutdown_token();
     let mut connections = tokio::task::JoinSet::new();
     tokio::pin!(shutdown);

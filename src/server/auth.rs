@@ -5,7 +5,8 @@
 //! A middleware rather than an extractor, so that no handler can forget it: [`super::app`] puts
 //! it on the protected routes as one `route_layer`.
 
-use super::{ApiError, AppState};
+use super::error::ApiError;
+use super::state::AppState;
 use axum::extract::{Query, Request, State};
 use axum::http::header;
 use axum::middleware::Next;

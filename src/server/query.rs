@@ -9,7 +9,7 @@
 //!
 //! No struct may use `#[serde(flatten)]`: serde does not deny unknown fields through it.
 
-use super::ApiError;
+use super::error::ApiError;
 use crate::envmap::Projection;
 use crate::lights::Method;
 use crate::mapping::Domain;

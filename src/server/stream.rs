@@ -4,8 +4,9 @@
 //! frames, never a queue, and never holds up the capture loop or another client. A client that
 //! stops reading for longer than the send timeout is disconnected.
 
+use super::error::ApiError;
 use super::query::{Params, StreamQuery};
-use super::{ApiError, AppState};
+use super::state::AppState;
 use crate::daemon::Subscription;
 use crate::lightset::SUBPROTOCOL;
 use crate::metrics::Metrics;

@@ -11,10 +11,11 @@
 //! repeated same-size uploads cheap. A refused body is drained a little (unless the client sent
 //! `Expect: 100-continue`), so that a client still sending reads the answer.
 
+use super::error::ApiError;
+use super::handlers::json_response;
 use super::query::{Params, UploadQuery};
-use super::{ApiError, AppState, json_response};
+use super::state::AppState;
 use crate::envmap::{Decoding, EnvMap, Projection};
-use crate::lights::Extractor;
 use crate::lightset::{LightRequest, lightset_for_map, now_ns};
 use crate::metrics::Metrics;
 use axum::body::Body;
@@ -22,66 +23,7 @@ use axum::extract::State;
 use axum::http::{HeaderMap, header};
 use axum::response::Response;
 use futures_util::StreamExt;
-use std::sync::Mutex;
 use std::time::{Duration, Instant};
-use tokio::sync::Semaphore;
-
-/// Limits of `POST /v1/lights` and the extractors that serve it.
-pub struct Uploads {
-    /// Largest accepted body in bytes (checked from Content-Length, then while reading).
-    pub max_body: usize,
-    /// Largest accepted image in pixels (checked from the image header before decoding).
-    pub max_pixels: u64,
-    /// Decoding and extraction run on blocking threads, this many at once.
-    permits: Semaphore,
-    /// Bytes of request bodies held at once, in KiB: each upload reserves its declared length
-    /// (`max_body` when it declares none) before reading, so that many large uploads arriving
-    /// together (or stalling) cannot hold more memory than this between them.
-    buffered_kib: Semaphore,
-    /// An upload that sends nothing for this long is answered 408; one that waits this long for
-    /// room in the buffer budget, 503.
-    pub idle_timeout: Duration,
-    /// An upload that is not in after this long in all is answered 408.
-    pub total_timeout: Duration,
-    /// Idle extractors, whose cached tables make repeated same-size uploads cheap.
-    extractors: Mutex<Vec<Extractor>>,
-}
-
-impl Uploads {
-    /// Limits for bodies of up to `max_body` bytes holding up to `max_pixels` pixels, decoded
-    /// `concurrency` at a time; bodies of twice that many uploads at their largest may be held
-    /// at once.
-    pub fn new(max_body: usize, max_pixels: u64, concurrency: usize) -> Self {
-        let concurrency = concurrency.max(1);
-        let budget_kib = kib(max_body).saturating_mul(2 * concurrency);
-        Uploads {
-            max_body,
-            max_pixels,
-            permits: Semaphore::new(concurrency),
-            buffered_kib: Semaphore::new(budget_kib.min(Semaphore::MAX_PERMITS)),
-            idle_timeout: Duration::from_secs(10),
-            total_timeout: Duration::from_secs(120),
-            extractors: Mutex::new(Vec::new()),
-        }
-    }
-
-    /// Room for a body of `bytes` in the buffer budget, waiting up to `idle_timeout` for it.
-    async fn reserve(&self, bytes: usize) -> Result<tokio::sync::SemaphorePermit<'_>, ApiError> {
-        let n = u32::try_from(kib(bytes)).unwrap_or(u32::MAX);
-        match tokio::time::timeout(self.idle_timeout, self.buffered_kib.acquire_many(n)).await {
-            Ok(Ok(permit)) => Ok(permit),
-            Ok(Err(_)) => Err(ApiError::Unavailable("shutting down".into())),
-            Err(_) => Err(ApiError::Unavailable(
-                "too many uploads are being received at once; retry shortly".into(),
-            )),
-        }
-    }
-}
-
-/// Bytes in KiB, rounded up.
-fn kib(bytes: usize) -> usize {
-    bytes.div_ceil(1024)
-}
 
 /// `POST /v1/lights`: a raw EXR or Radiance HDR body → the same LightSet `vemlight lights` gives.
 ///

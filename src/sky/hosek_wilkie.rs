@@ -197,8 +197,8 @@ mod tests {
             s2.model.set(elev_deg.to_radians());
             let state = SkyState::new(&SkyParams {
                 elevation: elev_deg.to_radians() as f32,
-                turbidity: s.cfg.turbidity as f32,
-                albedo: [s.cfg.ground_albedo as f32; 3],
+                turbidity: s.config().turbidity as f32,
+                albedo: [s.config().ground_albedo as f32; 3],
             })
             .unwrap();
             for theta_deg in [0.0f64, 30.0, 60.0, 85.0, 89.9] {

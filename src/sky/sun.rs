@@ -10,9 +10,11 @@
 
 use glam::DVec3;
 
+use super::clouds::Clouds;
+use super::disc::cap_solid_angle;
 use super::hosek_wilkie::HwModel;
 use super::sun_path::NOON_ELEVATION_DEG;
-use super::{SyntheticSky, disc::cap_solid_angle, luminance};
+use crate::envmap::luminance64;
 
 /// Angular diameter of the sun disk, in degrees (the real sun: 0.53°).
 pub const SUN_ANGULAR_DIAMETER_DEG: f64 = 0.53;
@@ -20,7 +22,8 @@ pub const SUN_ANGULAR_DIAMETER_DEG: f64 = 0.53;
 /// the sun at [`NOON_ELEVATION_DEG`]. Clear-sky measurements put direct normal irradiance at about
 /// 850–950 W/m² against 60–120 W/m² of diffuse: the sun carries roughly 10–15× the sky's energy.
 /// The sun's radiance scale is calibrated once per sky so that this holds at noon; at other
-/// elevations Beer-Lambert extinction along the air mass decides (see [`SyntheticSky::sun_radiance`]).
+/// elevations Beer-Lambert extinction along the air mass decides (see
+/// [`SyntheticSky::sun_radiance`](super::SyntheticSky::sun_radiance)).
 pub const SUN_TO_SKY_RATIO: f64 = 12.0;
 /// Fraction of the sun's radiance a full cloud removes.
 const SUN_CLOUD_OPACITY: f64 = 0.85;
@@ -53,8 +56,8 @@ impl Sun {
         let noon_sun = DVec3::new(0.0, noon.sin(), -noon.cos());
         let sky_integral = model.clear_sky_integral(noon_sun, 128, 256);
         let t_noon = sun.transmittance(NOON_ELEVATION_DEG);
-        sun.scale = SUN_TO_SKY_RATIO * luminance(sky_integral)
-            / (luminance(t_noon) * SyntheticSky::sun_solid_angle());
+        sun.scale = SUN_TO_SKY_RATIO * luminance64(sky_integral)
+            / (luminance64(t_noon) * sun_solid_angle());
         sun
     }
 
@@ -63,30 +66,24 @@ impl Sun {
         let m = air_mass(elev_deg);
         self.tau.map(|tau| (-tau * m).exp())
     }
-}
 
-impl SyntheticSky {
-    /// Solid angle of the 0.53° sun disk, sr: 2π(1 − cos r) = 4π sin²(r/2).
-    pub fn sun_solid_angle() -> f64 {
-        cap_solid_angle(sun_radius())
-    }
-
-    /// Radiance of the sun disk at time t (linear RGB, model units): the calibrated exo-atmospheric
-    /// radiance × Beer-Lambert transmittance along the Kasten-Young air mass (so it reddens and
-    /// fades toward the horizon) × the cloud transmittance in front of it; 0 once the whole disk
-    /// has set. The part of the disk below the horizon is hidden by the ground, so the map holds
-    /// radiance × the visible part of [`Self::sun_solid_angle`]. Scale: the sun's ∫ L dω is
-    /// [`SUN_TO_SKY_RATIO`] × the clear sky's at noon (≈ 840 vs ≈ 70 model units at turbidity 3).
-    pub fn sun_radiance(&self, t: f64) -> [f32; 3] {
-        let dir = self.sun_direction(t);
+    /// Radiance of the disk at sun direction `dir`, time t, behind `clouds` (see
+    /// [`SyntheticSky::sun_radiance`](super::SyntheticSky::sun_radiance)); 0 once the whole disk
+    /// has set.
+    pub(super) fn radiance(&self, dir: DVec3, clouds: &Clouds, t: f64) -> [f32; 3] {
         if dir.y <= -sun_radius().sin() {
             return [0.0; 3];
         }
         let elev = dir.y.clamp(-1.0, 1.0).asin().to_degrees();
-        let tr = self.sun.transmittance(elev);
-        let clouds = 1.0 - SUN_CLOUD_OPACITY * self.clouds.sun_cover(dir, t);
-        tr.map(|x| (self.sun.scale * x * clouds) as f32)
+        let tr = self.transmittance(elev);
+        let clouds = 1.0 - SUN_CLOUD_OPACITY * clouds.sun_cover(dir, t);
+        tr.map(|x| (self.scale * x * clouds) as f32)
     }
+}
+
+/// Solid angle of the sun disk, sr: 2π(1 − cos r) = 4π sin²(r/2).
+pub(super) fn sun_solid_angle() -> f64 {
+    cap_solid_angle(sun_radius())
 }
 
 /// Relative optical air mass (Kasten & Young 1989), elevation in degrees, clamped just below the
@@ -104,7 +101,7 @@ mod tests {
     use crate::envmap::EnvMap;
     use crate::sky::disc::angle_between;
     use crate::sky::testing::{sky, upper_integral};
-    use crate::sky::{SwitchLight, SyntheticConfig};
+    use crate::sky::{SwitchLight, SyntheticConfig, SyntheticSky};
 
     #[test]
     fn sun_is_the_brightest_pixel_in_its_direction() {
@@ -180,9 +177,9 @@ mod tests {
             c.switch_light = None;
         });
         let noon = s.next_sunrise(0.0) + s.period_s() / 4.0;
-        let with = luminance(upper_integral(&s.render(noon)));
+        let with = luminance64(upper_integral(&s.render(noon)));
         s.draw_sun = false;
-        let sky_only = luminance(upper_integral(&s.render(noon)));
+        let sky_only = luminance64(upper_integral(&s.render(noon)));
         let ratio = (with - sky_only) / sky_only;
         assert!(
             (ratio - SUN_TO_SKY_RATIO).abs() < 0.05 * SUN_TO_SKY_RATIO,
@@ -209,9 +206,9 @@ mod tests {
             ("midnight", rise + 270.0),
         ] {
             let m = s.render(t);
-            let all = luminance(upper_integral(&m));
+            let all = luminance64(upper_integral(&m));
             s.draw_sun = false;
-            let sky = luminance(upper_integral(&s.render(t)));
+            let sky = luminance64(upper_integral(&s.render(t)));
             s.draw_sun = true;
             let ground = EnvMap::luminance(m.pixels[m.pixels.len() - 1]);
             eprintln!(

@@ -10,8 +10,6 @@ use std::f64::consts::{PI, TAU};
 
 use glam::DVec3;
 
-use super::SyntheticSky;
-
 /// Elevation of the sun at noon on the synthetic day arc, in degrees.
 pub const NOON_ELEVATION_DEG: f64 = 60.0;
 
@@ -41,44 +39,32 @@ impl SunPath {
     fn arc_angle(&self, t: f64) -> f64 {
         (self.alpha0 + self.omega * t).rem_euclid(TAU)
     }
-}
 
-impl SyntheticSky {
     /// Seconds from one sunrise to the next (infinite when the sun does not move).
-    pub fn period_s(&self) -> f64 {
-        TAU / self.path.omega.abs()
+    pub(super) fn period_s(&self) -> f64 {
+        TAU / self.omega.abs()
     }
 
     /// The first sunrise at or after `t` (the sun crosses the horizon rising, in the east, +X).
-    pub fn next_sunrise(&self, t: f64) -> f64 {
-        let omega = self.path.omega;
+    pub(super) fn next_sunrise(&self, t: f64) -> f64 {
+        let omega = self.omega;
         if omega == 0.0 {
             return f64::INFINITY;
         }
         // Arc angle ≡ 0 (mod 2π) when rising for ω > 0; for ω < 0 the sun runs the arc backwards
         // and rises at α = π.
         let target = if omega > 0.0 { 0.0 } else { PI };
-        let alpha = self.path.arc_angle(t);
+        let alpha = self.arc_angle(t);
         let to_go = ((target - alpha) / omega).rem_euclid(self.period_s());
         t + to_go
     }
 
-    /// Unit vector toward the sun centre at time t (world frame).
-    ///
-    /// The sun moves at constant speed on the great circle through east (+X) and west (−X) that
-    /// culminates at [`NOON_ELEVATION_DEG`] toward −Z: `d(α) = cos α·X̂ + sin α·N̂` with
-    /// `N̂ = (0, sin 60°, −cos 60°)`, so elevation = asin(sin α · sin 60°): 0 at sunrise (α = 0),
-    /// 60° at noon, 0 at sunset (α = π), and a night of equal length below the horizon. Periodic,
-    /// defined for any t.
-    pub fn sun_direction(&self, t: f64) -> DVec3 {
-        let (sa, ca) = self.path.arc_angle(t).sin_cos();
+    /// Unit vector toward the sun centre at time t (world frame): `d(α) = cos α·X̂ + sin α·N̂` with
+    /// `N̂ = (0, sin 60°, −cos 60°)` (see [`SyntheticSky::sun_direction`](super::SyntheticSky::sun_direction)).
+    pub(super) fn direction(&self, t: f64) -> DVec3 {
+        let (sa, ca) = self.arc_angle(t).sin_cos();
         let (sn, cn) = NOON_ELEVATION_DEG.to_radians().sin_cos();
         DVec3::new(ca, sa * sn, -sa * cn).normalize()
-    }
-
-    /// Elevation of the sun centre above the horizon at time t, degrees.
-    pub fn sun_elevation_deg(&self, t: f64) -> f64 {
-        self.sun_direction(t).y.clamp(-1.0, 1.0).asin().to_degrees()
     }
 }
 

@@ -1,10 +1,10 @@
 //! Test helpers shared by the sky's unit tests: a sky of a given width, and the energies the tests
 //! compare (with the solid angles of envmap.rs, independent of the sky's own grid tables).
 
-use crate::envmap::EnvMap;
+use crate::envmap::{EnvMap, luminance64};
 use crate::mapping::Domain;
 
-use super::{SyntheticConfig, SyntheticSky, luminance};
+use super::{SyntheticConfig, SyntheticSky};
 
 /// The default sky at `width` × `width/2`, with `f` applied to its configuration.
 pub(super) fn sky(width: usize, f: impl FnOnce(&mut SyntheticConfig)) -> SyntheticSky {
@@ -33,5 +33,5 @@ pub(super) fn upper_integral(map: &EnvMap) -> [f64; 3] {
 
 /// Luminance of ∫ L dω over the whole sphere.
 pub(super) fn total(map: &EnvMap) -> f64 {
-    luminance(map.integral(Domain::Sphere))
+    luminance64(map.integral(Domain::Sphere))
 }

@@ -1,0 +1,123 @@
+//! The small handlers: `GET /` (the live view), `GET /healthz`, `GET /metrics` and
+//! `GET /v1/lights/latest` (DESIGN.md "Processes and endpoints").
+
+use super::error::ApiError;
+use super::query::{LatestQuery, Params};
+use super::state::AppState;
+use crate::daemon::SourceState;
+use axum::extract::State;
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use std::time::Duration;
+
+/// `GET /`: the live view (src/server/viewer.html), a browser client of `/v1/stream`. A static
+/// page, so it needs no token; it passes its own `?access_token=` on to the stream.
+pub(super) async fn viewer() -> Response {
+    (
+        [
+            (
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("text/html; charset=utf-8"),
+            ),
+            (header::CACHE_CONTROL, HeaderValue::from_static("no-cache")),
+        ],
+        include_str!("viewer.html"),
+    )
+        .into_response()
+}
+
+/// `GET /healthz`: 200 while the daemon can serve a light set (status "degraded" when the source
+/// has failed, ended or stalled and the last good set is being served), 503 before the first one
+/// ("starting", or "failed" when the source ended or failed before giving one).
+pub(super) async fn healthz(State(state): State<AppState>) -> Response {
+    let source = state.hub.health();
+    let latest = state.hub.latest();
+    let status = match (latest.is_some(), source.delivering()) {
+        // The source ended or failed before its first good frame: nothing will come.
+        (false, _) if matches!(source.state, SourceState::Ended | SourceState::Failed) => "failed",
+        (false, _) => "starting",
+        (true, true) => "ok",
+        (true, false) => "degraded",
+    };
+    let body = serde_json::json!({
+        "status": status,
+        "serving_last_good_lightset": latest.is_some() && status == "degraded",
+        "latest_seq": latest.as_ref().map(|p| p.seq),
+        "latest_frame": latest.as_ref().map(|p| p.frame),
+        "latest_age_s": latest.as_ref().map(|p| p.captured_at.elapsed().as_secs_f64()),
+        "source": source,
+        "uptime_s": state.started.elapsed().as_secs_f64(),
+    });
+    let code = if latest.is_some() {
+        StatusCode::OK
+    } else {
+        StatusCode::SERVICE_UNAVAILABLE
+    };
+    (code, axum::Json(body)).into_response()
+}
+
+/// `GET /metrics`: Prometheus text format: the counters and histograms, then two gauges from
+/// the source's health, for alerts on a source that has stopped.
+pub(super) async fn metrics(State(state): State<AppState>) -> Response {
+    use std::fmt::Write;
+    let mut text = state.hub.metrics.render();
+    let source = state.hub.health();
+    let _ = writeln!(
+        text,
+        "# HELP vemlight_source_up Whether the source delivers frames (0: starting, failed, ended or stalled).\n\
+         # TYPE vemlight_source_up gauge\nvemlight_source_up {}",
+        u8::from(source.delivering())
+    );
+    if let Some(p) = state.hub.latest() {
+        let _ = writeln!(
+            text,
+            "# HELP vemlight_lightset_age_seconds Age of the newest LightSet's frame.\n\
+             # TYPE vemlight_lightset_age_seconds gauge\nvemlight_lightset_age_seconds {:.6}",
+            p.captured_at.elapsed().as_secs_f64()
+        );
+    }
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("text/plain; version=0.0.4"),
+        )],
+        text,
+    )
+        .into_response()
+}
+
+/// `GET /v1/lights/latest[?lights=N]`: the newest published set (default light count, or N,
+/// waiting up to two frames' worth of time for a count not yet being computed).
+pub(super) async fn latest(
+    Params(q): Params<LatestQuery>,
+    State(state): State<AppState>,
+) -> Result<Response, ApiError> {
+    let published = match q.lights {
+        None => state.hub.latest(),
+        Some(n) if n == state.hub.default_lights() => state.hub.latest(),
+        Some(n) => {
+            let mut sub = state.hub.subscribe(n).map_err(ApiError::BadRequest)?;
+            let wait =
+                tokio::time::timeout(Duration::from_secs(2), sub.rx.wait_for(Option::is_some));
+            match wait.await {
+                Ok(Ok(v)) => v.clone(),
+                _ => None,
+            }
+        }
+    };
+    let p = published.ok_or_else(|| ApiError::Unavailable("no light set yet".into()))?;
+    Ok(json_response(p.json.clone()))
+}
+
+/// A LightSet document, already serialized, as the answer.
+pub(super) fn json_response(body: impl Into<axum::body::Body>) -> Response {
+    let body: axum::body::Body = body.into();
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        body,
+    )
+        .into_response()
+}
