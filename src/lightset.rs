@@ -47,6 +47,10 @@ pub struct LightSet {
     /// L2 radiance SH, 27 floats, RGB interleaved, WebXR order (see `lights::sh`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sh9: Option<Vec<f32>>,
+    /// With a shadow budget (`shadowed=K`): the L2 radiance SH of the map less the lights marked
+    /// `shadowed`, so that K shadowed lights plus this ambient term hold the map's energy.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sh9_unshadowed: Option<Vec<f32>>,
     /// Σ irradiance over the lights = ∫ L dω over the domain, linear RGB.
     pub total_irradiance: [f64; 3],
     /// The temporal filter applied (streams only); its delay is how far the lights lag the frame.
@@ -86,6 +90,7 @@ impl LightSet {
             domain,
             primary: primary_light(&lights),
             sh9: None,
+            sh9_unshadowed: None,
             total_irradiance: total_irradiance(&lights),
             filter: None,
             diagnostics: Diagnostics {
@@ -95,6 +100,7 @@ impl LightSet {
                 overbright_pixels: map.repairs.overbright_pixels,
                 projection: map.projection.name().into(),
                 lights_requested,
+                lights_chosen: None,
                 lights_short: short,
                 domain_side,
                 ..Diagnostics::default()
@@ -118,6 +124,9 @@ pub struct Diagnostics {
     pub projection: String,
     /// Light count asked for (the cap, with `max_error`).
     pub lights_requested: usize,
+    /// With `max_error`: the light count chosen, the fewest whose estimated error meets it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lights_chosen: Option<usize>,
     /// How many fewer lights than asked the map could give (every light carries energy; a map
     /// with fewer lit regions gives fewer lights). Absent when none.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -129,6 +129,8 @@ pub struct Metrics {
     pub frames_dropped: AtomicU64,
     pub source_errors: AtomicU64,
     pub lightsets_published: AtomicU64,
+    /// Times a stream with an error target (`max_error`) changed its light count.
+    pub adaptive_count_changes: AtomicU64,
     pub ws_clients: AtomicU64,
     pub ws_connections_total: AtomicU64,
     pub ws_messages_sent: AtomicU64,
@@ -197,6 +199,12 @@ impl Metrics {
             "lightsets_published_total",
             "LightSet documents published (all light counts).",
             &self.lightsets_published,
+        );
+        counter(
+            &mut s,
+            "adaptive_count_changes_total",
+            "Light-count changes of streams with an error target (max_error).",
+            &self.adaptive_count_changes,
         );
         counter(
             &mut s,

@@ -239,6 +239,7 @@ impl TemporalFilter {
                     irradiance: irr.map(|v| v.max(0.0) as f32),
                     solid_angle: sr.max(0.0) as f32,
                     angular_radius: radius.max(0.0) as f32,
+                    shadowed: None,
                 }
             })
             .collect()
@@ -256,6 +257,7 @@ mod tests {
             irradiance: [power; 3],
             solid_angle: 0.1,
             angular_radius: 0.0,
+            shadowed: None,
         }
     }
 

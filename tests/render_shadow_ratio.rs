@@ -48,6 +48,7 @@ fn light(id: u32, to_light: Vec3, e: f32) -> Light {
         irradiance: [e; 3],
         solid_angle: 0.01,
         angular_radius: 0.0,
+        shadowed: None,
     }
 }
 

@@ -83,7 +83,79 @@ pub(super) struct HealthState {
     pub(super) stall_after: Duration,
 }
 
-/// One light count's channel and how many subscribers want it.
+/// What a client subscribes to (docs/API.md, "The stream"): at most `lights` lights — the fewest
+/// whose estimated diffuse error meets `max_error` when one is given — with `shadowed` of them
+/// marked as worth a shadow map and the rest also given as L2 SH.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct StreamKey {
+    /// The most lights; exactly this many without `max_error`.
+    pub lights: usize,
+    /// The error target in parts per million (a key must be `Eq` and `Ord`).
+    max_error_ppm: Option<u32>,
+    /// How many lights to mark for shadow maps; no marking and no remainder SH when `None`.
+    pub shadowed: Option<usize>,
+}
+
+impl StreamKey {
+    /// A checked key: 1 ≤ `lights` ≤ 1024, 0 < `max_error` ≤ 1, `shadowed` ≤ `lights`.
+    pub fn new(
+        lights: usize,
+        max_error: Option<f64>,
+        shadowed: Option<usize>,
+    ) -> Result<Self, String> {
+        if !(1..=N_MAX).contains(&lights) {
+            return Err(format!(
+                "lights must be between 1 and {N_MAX}, got {lights}"
+            ));
+        }
+        let max_error_ppm = match max_error {
+            None => None,
+            Some(e) if e.is_finite() && e > 0.0 && e <= 1.0 => {
+                Some(((e * 1e6).round() as u32).max(1))
+            }
+            Some(e) => {
+                return Err(format!(
+                    "max_error must be a relative error in (0, 1] (0.02 for 2 %), got {e}"
+                ));
+            }
+        };
+        if let Some(k) = shadowed
+            && k > lights
+        {
+            return Err(format!(
+                "shadowed must be at most lights ({lights}), got {k}"
+            ));
+        }
+        Ok(StreamKey {
+            lights,
+            max_error_ppm,
+            shadowed,
+        })
+    }
+
+    /// The relative diffuse error target, if any.
+    pub fn max_error(&self) -> Option<f64> {
+        self.max_error_ppm.map(|p| p as f64 * 1e-6)
+    }
+
+    /// Whether the light count adapts to an error target.
+    pub fn is_adaptive(&self) -> bool {
+        self.max_error_ppm.is_some()
+    }
+}
+
+impl From<usize> for StreamKey {
+    /// Exactly `lights` lights, none marked (checked when subscribed).
+    fn from(lights: usize) -> Self {
+        StreamKey {
+            lights,
+            max_error_ppm: None,
+            shadowed: None,
+        }
+    }
+}
+
+/// One stream key's channel and how many subscribers want it.
 struct Channel {
     subscribers: usize,
     tx: watch::Sender<Option<Arc<Published>>>,
@@ -92,7 +164,7 @@ struct Channel {
 /// Shared between the pipeline threads and the server: the latest LightSet per light count,
 /// metrics, health and shutdown.
 pub struct Hub {
-    channels: Mutex<BTreeMap<usize, Channel>>,
+    channels: Mutex<BTreeMap<StreamKey, Channel>>,
     default_lights: usize,
     max_light_counts: usize,
     pub metrics: Arc<Metrics>,
@@ -105,17 +177,17 @@ pub struct Hub {
 /// A client's interest in one light count; dropping it tells the pipeline.
 pub struct Subscription {
     hub: Arc<Hub>,
-    pub lights: usize,
+    pub key: StreamKey,
     pub rx: watch::Receiver<Option<Arc<Published>>>,
 }
 
 impl Drop for Subscription {
     fn drop(&mut self) {
         let mut ch = self.hub.channels.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(c) = ch.get_mut(&self.lights) {
+        if let Some(c) = ch.get_mut(&self.key) {
             c.subscribers = c.subscribers.saturating_sub(1);
-            if c.subscribers == 0 && self.lights != self.hub.default_lights {
-                ch.remove(&self.lights);
+            if c.subscribers == 0 && self.key != StreamKey::from(self.hub.default_lights) {
+                ch.remove(&self.key);
             }
         }
     }
@@ -123,12 +195,12 @@ impl Drop for Subscription {
 
 impl Hub {
     /// A hub that always publishes `default_lights` (served by `/v1/lights/latest` even with no
-    /// client) and serves at most `max_light_counts` distinct counts at once (each costs one
-    /// assignment pass per frame).
+    /// client) and serves at most `max_light_counts` distinct streams at once (each costs up to
+    /// two assignment passes per frame).
     pub fn new(default_lights: usize, max_light_counts: usize, source: &str) -> Arc<Self> {
         let mut channels = BTreeMap::new();
         channels.insert(
-            default_lights,
+            StreamKey::from(default_lights),
             Channel {
                 subscribers: 0,
                 tx: watch::channel(None).0,
@@ -155,31 +227,31 @@ impl Hub {
         self.default_lights
     }
 
-    /// Subscribes to the sets of `lights` lights (1–1024); refused when that would exceed the
-    /// number of distinct light counts served at once.
-    pub fn subscribe(self: &Arc<Self>, lights: usize) -> Result<Subscription, String> {
-        if !(1..=N_MAX).contains(&lights) {
-            return Err(format!(
-                "lights must be between 1 and {N_MAX}, got {lights}"
-            ));
-        }
+    /// Subscribes to the sets of `key` (a light count, or a [`StreamKey`] with an error target
+    /// and a shadow budget); refused when the key is out of range or would exceed the number of
+    /// distinct keys served at once.
+    pub fn subscribe(self: &Arc<Self>, key: impl Into<StreamKey>) -> Result<Subscription, String> {
+        let key = key.into();
+        let key = StreamKey::new(key.lights, key.max_error(), key.shadowed)?;
         let mut ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
-        if !ch.contains_key(&lights) && ch.len() >= self.max_light_counts {
-            let served: Vec<String> = ch.keys().map(|k| k.to_string()).collect();
+        if !ch.contains_key(&key) && ch.len() >= self.max_light_counts {
             return Err(format!(
-                "the daemon already serves {} distinct light counts ({}); ask for one of them",
+                "the daemon already serves {} distinct streams (light counts {}); ask for one of them",
                 ch.len(),
-                served.join(", ")
+                ch.keys()
+                    .map(|k| k.lights.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ));
         }
-        let c = ch.entry(lights).or_insert_with(|| Channel {
+        let c = ch.entry(key).or_insert_with(|| Channel {
             subscribers: 0,
             tx: watch::channel(None).0,
         });
         c.subscribers += 1;
         Ok(Subscription {
             hub: self.clone(),
-            lights,
+            key,
             rx: c.tx.subscribe(),
         })
     }
@@ -187,28 +259,28 @@ impl Hub {
     /// The latest set for the default light count.
     pub fn latest(&self) -> Option<Arc<Published>> {
         let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
-        ch.get(&self.default_lights)
+        ch.get(&StreamKey::from(self.default_lights))
             .and_then(|c| c.tx.borrow().clone())
     }
 
-    /// Every light count asked for (the default included).
-    pub(super) fn light_counts(&self) -> Vec<usize> {
+    /// Every stream asked for (the default count included).
+    pub(super) fn keys(&self) -> Vec<StreamKey> {
         let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
         ch.keys().copied().collect()
     }
 
-    /// The light counts asked for that have no set yet.
-    pub(super) fn unserved_light_counts(&self) -> Vec<usize> {
+    /// The streams asked for that have no set yet.
+    pub(super) fn unserved_keys(&self) -> Vec<StreamKey> {
         let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
         ch.iter()
             .filter(|(_, c)| c.tx.borrow().is_none())
-            .map(|(&n, _)| n)
+            .map(|(&k, _)| k)
             .collect()
     }
 
-    pub(super) fn publish(&self, lights: usize, p: Arc<Published>) {
+    pub(super) fn publish(&self, key: StreamKey, p: Arc<Published>) {
         let ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(c) = ch.get(&lights) {
+        if let Some(c) = ch.get(&key) {
             c.tx.send_replace(Some(p));
         }
     }

@@ -12,11 +12,13 @@
 
 pub mod hub;
 
-pub use hub::{Hub, Published, SourceHealth, SourceState, Subscription, stall_after};
+pub use hub::{Hub, Published, SourceHealth, SourceState, StreamKey, Subscription, stall_after};
 
 use crate::capture::{FrameSource, SourceError};
 use crate::envmap::{EnvMap, Projection};
-use crate::lights::{Extractor, FrameLights, FrameRequest, Method};
+use crate::lights::budget::{self, AdaptiveCount};
+use crate::lights::error::IrradianceReference;
+use crate::lights::{Extraction, Extractor, FrameLights, FrameRequest, Method};
 use crate::lightset::{LightSet, Timings, default_domain, now_ns};
 use crate::mapping::Domain;
 use crate::metrics::Metrics;
@@ -250,8 +252,7 @@ const UNSERVED_POLL: Duration = Duration::from_millis(50);
 fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, source: &str) {
     let mut p = Processor {
         extractor: Extractor::new(),
-        filters: HashMap::new(),
-        seqs: HashMap::new(),
+        streams: HashMap::new(),
         filter_info: FilterInfo::new(&cfg.filter, fps),
     };
     p.extractor.set_refine(cfg.refine);
@@ -269,7 +270,7 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
                 if let Some(f) = s.frame.take() {
                     break Some(f);
                 }
-                if last.is_some() && !hub.unserved_light_counts().is_empty() {
+                if last.is_some() && !hub.unserved_keys().is_empty() {
                     break None;
                 }
                 s = mailbox
@@ -281,9 +282,9 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
         };
         let Some(frame) = frame else {
             // No new frame for a while: serve the counts nobody has a set for from the last one.
-            let counts = hub.unserved_light_counts();
+            let keys = hub.unserved_keys();
             if let Some(l) = &last {
-                p.publish(hub, cfg, source, l, Duration::ZERO, &counts);
+                p.publish(hub, cfg, source, l, Duration::ZERO, &keys);
             }
             continue;
         };
@@ -296,9 +297,9 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             t_capture_ns,
             captured_at,
         } = frame;
-        let counts = hub.light_counts();
-        // Forget the filter state of light counts nobody asks for any more.
-        p.filters.retain(|n, _| counts.contains(n));
+        let keys = hub.keys();
+        // Forget the state (filter, count, marks) of streams nobody asks for any more.
+        p.streams.retain(|k, _| keys.contains(k));
         let this = LastFrame {
             map,
             image,
@@ -307,7 +308,7 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             t_capture_ns,
             captured_at,
         };
-        p.publish(hub, cfg, source, &this, resample_tail, &counts);
+        p.publish(hub, cfg, source, &this, resample_tail, &keys);
         Metrics::inc(&hub.metrics.frames_processed);
         let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(older) = last.replace(this) {
@@ -327,17 +328,28 @@ struct LastFrame {
     captured_at: Instant,
 }
 
-/// The processing thread's state across frames: extraction caches, each light count's filter and
-/// sequence number.
+/// The processing thread's state across frames: extraction caches and each stream's state.
 struct Processor {
     extractor: Extractor,
-    filters: HashMap<usize, TemporalFilter>,
-    seqs: HashMap<usize, u64>,
+    streams: HashMap<StreamKey, StreamState>,
     filter_info: FilterInfo,
 }
 
+/// One stream's state across frames.
+struct StreamState {
+    filter: TemporalFilter,
+    /// The light count `filter` has history for.
+    filter_count: usize,
+    seq: u64,
+    /// The count of a stream with an error target.
+    adaptive: Option<AdaptiveCount>,
+    /// The ids marked for shadow maps in the last set (see [`budget::mark`]).
+    marked: Vec<u32>,
+}
+
 impl Processor {
-    /// Extracts each light count from `frame`, filters it, builds its LightSet and publishes it.
+    /// Extracts what each stream of `keys` needs from `frame`, filters it, builds each stream's
+    /// LightSet and publishes it.
     fn publish(
         &mut self,
         hub: &Hub,
@@ -345,9 +357,28 @@ impl Processor {
         source: &str,
         frame: &LastFrame,
         resample_tail: Duration,
-        counts: &[usize],
+        keys: &[StreamKey],
     ) {
         let m = &hub.metrics;
+        // The counts this frame needs: each stream's own, and what an adaptive stream needs to
+        // choose its count (see `AdaptiveCount`).
+        let mut counts: Vec<usize> = Vec::new();
+        for key in keys {
+            match (self.streams.get(key), key.max_error()) {
+                (
+                    Some(StreamState {
+                        adaptive: Some(a), ..
+                    }),
+                    _,
+                ) => counts.extend(a.counts_needed()),
+                (None, Some(target)) => {
+                    counts.extend(AdaptiveCount::new(key.lights, target).counts_needed())
+                }
+                _ => counts.push(key.lights),
+            }
+        }
+        counts.sort_unstable();
+        counts.dedup();
         let FrameLights {
             extractions,
             sh9,
@@ -357,40 +388,87 @@ impl Processor {
             &frame.image,
             &FrameRequest {
                 method: cfg.method,
-                counts,
-                sh9: cfg.sh9,
+                counts: &counts,
+                sh9: cfg.sh9 || keys.iter().any(|k| k.shadowed.is_some()),
             },
         );
         if let Some(first) = extractions.first() {
             m.stage_warp.record_secs(first.timings.warp_s);
         }
         m.stage_sh.record_secs(sh9_s);
-        for (&n, ex) in counts.iter().zip(extractions) {
+        for ex in &extractions {
             m.stage_assign.record_secs(ex.timings.assign_s);
+        }
+        let by_count: HashMap<usize, &Extraction> =
+            counts.iter().copied().zip(&extractions).collect();
+        // The irradiance reference of the adaptive streams' error estimates, made once a frame.
+        let mut reference: Option<IrradianceReference> = None;
+        for &key in keys {
             let t = Instant::now();
-            let filter = self
-                .filters
-                .entry(n)
-                .or_insert_with(|| TemporalFilter::new(&cfg.filter));
-            let lights = filter.filter(&ex.lights);
+            let st = self.streams.entry(key).or_insert_with(|| StreamState {
+                filter: TemporalFilter::new(&cfg.filter),
+                filter_count: 0,
+                seq: 0,
+                adaptive: key.max_error().map(|e| AdaptiveCount::new(key.lights, e)),
+                marked: Vec::new(),
+            });
+            let (count, estimated_error) = match &mut st.adaptive {
+                Some(adaptive) => {
+                    let reference = reference.get_or_insert_with(|| {
+                        IrradianceReference::from_domain_image(&frame.image)
+                    });
+                    let before = adaptive.count();
+                    let served = adaptive.update(|n| {
+                        by_count
+                            .get(&n)
+                            .map(|ex| reference.error(&ex.lights).rel_rms)
+                    });
+                    if before != 0 && adaptive.count() != before {
+                        Metrics::inc(&m.adaptive_count_changes);
+                    }
+                    served
+                }
+                None => (key.lights, None),
+            };
+            let Some(ex) = by_count.get(&count) else {
+                continue;
+            };
+            if st.filter_count != count {
+                // Another count's ids are other lights: its history does not carry over.
+                st.filter = TemporalFilter::new(&cfg.filter);
+                st.filter_count = count;
+            }
+            let lights = st.filter.filter(&ex.lights);
             m.stage_filter.record(t.elapsed());
-
             let t = Instant::now();
-            let seq = self.seqs.entry(n).or_insert(0);
-            *seq += 1;
+            st.seq += 1;
             let mut set = LightSet::new(
                 lights,
                 &frame.map,
                 cfg.method,
                 frame.domain,
                 source,
-                n,
+                count,
                 ex.side,
             );
-            set.seq = *seq;
+            set.seq = st.seq;
             set.frame = frame.index;
             set.t_capture_ns = frame.t_capture_ns;
-            set.sh9 = sh9.clone();
+            if cfg.sh9 {
+                set.sh9 = sh9.clone();
+            }
+            if let Some(target) = key.max_error() {
+                let d = &mut set.diagnostics;
+                d.lights_requested = key.lights;
+                d.lights_chosen = Some(count);
+                d.estimated_error = estimated_error;
+                d.max_error = Some(target);
+                d.max_error_met = estimated_error.map(|e| e <= target);
+            }
+            if let (Some(k), Some(sh9)) = (key.shadowed, &sh9) {
+                st.marked = budget::mark(&mut set.lights, k, &st.marked);
+                set.sh9_unshadowed = Some(budget::remainder_sh(sh9, &set.lights));
+            }
             set.filter = Some(self.filter_info.clone());
             // From the frame's last rows in to this document; resampling done while the frame
             // arrived is not in it.
@@ -404,9 +482,9 @@ impl Processor {
             set.t_emit_ns = now_ns();
             match serde_json::to_string(&set) {
                 Ok(json) => hub.publish(
-                    n,
+                    key,
                     Arc::new(Published {
-                        seq: *seq,
+                        seq: st.seq,
                         frame: frame.index,
                         t_capture_ns: frame.t_capture_ns,
                         captured_at: frame.captured_at,

@@ -6,6 +6,7 @@
 //! markers. Speed figures are medians, because these machines are noisy.
 
 pub mod accuracy;
+pub mod budget;
 pub mod charts;
 pub mod per_map;
 pub mod scenes;
@@ -164,6 +165,16 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
     let frontier_md = per_map::frontier_markdown(&frontier_rows);
     write(&opts.out.join("frontier.md"), &frontier_md)?;
 
+    // 1c. A client's shadow budget: K shadowed lights, with and without the remainder SH.
+    bar.set_message("shadow budget");
+    let mut budget_rows = Vec::new();
+    for ((name, map), truth) in maps.iter().zip(&sphere_truths) {
+        budget_rows.extend(budget::evaluate_map(name, map, truth));
+    }
+    write(&opts.out.join("budget.csv"), &budget::to_csv(&budget_rows))?;
+    let budget_md = budget::markdown(&budget_rows);
+    write(&opts.out.join("budget.md"), &budget_md)?;
+
     // 2. Temporal stability.
     let t_temporal = Instant::now();
     let base = maps
@@ -235,6 +246,7 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
             ("accuracy", &accuracy_md),
             ("per-map", &per_map_md),
             ("frontier", &frontier_md),
+            ("budget", &budget_md),
             ("temporal", &temporal_md),
             ("stability", &stability_md),
             ("run", &run_md),

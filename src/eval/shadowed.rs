@@ -357,6 +357,7 @@ mod tests {
             irradiance: [y; 3],
             solid_angle: 0.0,
             angular_radius: radius,
+            shadowed: None,
         }
     }
 

@@ -277,6 +277,7 @@ mod tests {
             irradiance: [y; 3],
             solid_angle: 0.0,
             angular_radius: 0.0,
+            shadowed: None,
         }
     }
 

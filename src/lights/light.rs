@@ -22,6 +22,10 @@ pub struct Light {
     /// needs; 0 for a point. Older documents without it read as 0.
     #[serde(default)]
     pub angular_radius: f32,
+    /// With a client's shadow budget (`shadowed=K`, see [`super::budget`]): whether this light is
+    /// one of the K worth a shadow map. Absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shadowed: Option<bool>,
 }
 
 impl Light {

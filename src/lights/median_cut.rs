@@ -228,6 +228,7 @@ impl MedianCut {
                     irradiance: rgb.map(|v| v as f32),
                     solid_angle: sr as f32,
                     angular_radius: super::light::angular_radius(lum, dir.length()),
+                    shadowed: None,
                 }
             })
             .collect();

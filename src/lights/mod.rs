@@ -13,6 +13,7 @@
 //!   lat-long map) with the same fixed points and the same spherical cells as the default: only
 //!   the warp differs, so it measures what bicontinuity buys (baseline, ALGORITHMS.md §7).
 
+pub mod budget;
 pub mod error;
 pub mod inverse_cdf;
 pub mod kmeans;
@@ -1031,6 +1032,7 @@ impl Extractor {
                     irradiance: (a.energy * texel_sr).as_vec3().to_array(),
                     solid_angle: (a.texels as f64 * texel_sr) as f32,
                     angular_radius: angular_radius(p, along),
+                    shadowed: None,
                 }
             })
             .collect()

@@ -248,6 +248,7 @@ mod tests {
             irradiance: [power; 3],
             solid_angle: 0.01,
             angular_radius: 0.0,
+            shadowed: None,
         }
     }
 

@@ -747,6 +747,7 @@ mod tests {
             irradiance: [1.0; 3],
             solid_angle: 0.1,
             angular_radius: 0.0,
+            shadowed: None,
         };
         // 5° below the horizon: reaches normals tilted 10° toward it. 20° below: cannot.
         let lights = [

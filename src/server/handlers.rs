@@ -4,7 +4,7 @@
 use super::error::ApiError;
 use super::query::{LatestQuery, Params};
 use super::state::AppState;
-use crate::daemon::SourceState;
+use crate::daemon::{SourceState, StreamKey};
 use axum::extract::State;
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
@@ -92,17 +92,17 @@ pub(super) async fn latest(
     Params(q): Params<LatestQuery>,
     State(state): State<AppState>,
 ) -> Result<Response, ApiError> {
-    let published = match q.lights {
-        None => state.hub.latest(),
-        Some(n) if n == state.hub.default_lights() => state.hub.latest(),
-        Some(n) => {
-            let mut sub = state.hub.subscribe(n).map_err(ApiError::BadRequest)?;
-            let wait =
-                tokio::time::timeout(Duration::from_secs(2), sub.rx.wait_for(Option::is_some));
-            match wait.await {
-                Ok(Ok(v)) => v.clone(),
-                _ => None,
-            }
+    let default = StreamKey::from(state.hub.default_lights());
+    let key = StreamKey::new(q.lights.unwrap_or(default.lights), q.max_error, q.shadowed)
+        .map_err(ApiError::BadRequest)?;
+    let published = if key == default {
+        state.hub.latest()
+    } else {
+        let mut sub = state.hub.subscribe(key).map_err(ApiError::BadRequest)?;
+        let wait = tokio::time::timeout(Duration::from_secs(2), sub.rx.wait_for(Option::is_some));
+        match wait.await {
+            Ok(Ok(v)) => v.clone(),
+            _ => None,
         }
     };
     let p = published.ok_or_else(|| ApiError::Unavailable("no light set yet".into()))?;

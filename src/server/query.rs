@@ -31,6 +31,10 @@ pub struct StreamQuery {
     pub lights: Option<usize>,
     /// The most sets a second this client is sent (at least `MIN_MAX_HZ`); every set when absent.
     pub max_hz: Option<f64>,
+    /// The fewest lights (at most `lights`) whose estimated diffuse error is at most this.
+    pub max_error: Option<f64>,
+    /// The client's shadow budget: this many lights marked `shadowed`, the rest also as SH.
+    pub shadowed: Option<usize>,
     /// The bearer token of a browser client, whose WebSocket cannot send headers: checked by
     /// `auth::require_token` before the handler runs, declared here so that it is not refused.
     #[serde(rename = "access_token")]
@@ -43,6 +47,10 @@ pub struct StreamQuery {
 pub struct LatestQuery {
     /// Lights per set; the daemon's `--lights` when absent.
     pub lights: Option<usize>,
+    /// As on the stream ([`StreamQuery::max_error`]).
+    pub max_error: Option<f64>,
+    /// As on the stream ([`StreamQuery::shadowed`]).
+    pub shadowed: Option<usize>,
 }
 
 /// `POST /v1/lights`: the options of `vemlight lights`.

@@ -7,7 +7,7 @@
 use super::error::ApiError;
 use super::query::{Params, StreamQuery};
 use super::state::AppState;
-use crate::daemon::Subscription;
+use crate::daemon::{StreamKey, Subscription};
 use crate::lightset::SUBPROTOCOL;
 use crate::metrics::Metrics;
 use axum::extract::State;
@@ -62,7 +62,8 @@ pub async fn stream(
             1.0 / MIN_MAX_HZ
         )));
     }
-    let sub = state.hub.subscribe(lights).map_err(ApiError::BadRequest)?;
+    let key = StreamKey::new(lights, q.max_error, q.shadowed).map_err(ApiError::BadRequest)?;
+    let sub = state.hub.subscribe(key).map_err(ApiError::BadRequest)?;
     let min_interval = max_hz.map(|hz| Duration::from_secs_f64(1.0 / hz));
     Ok(ws
         .protocols([SUBPROTOCOL])

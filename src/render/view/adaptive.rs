@@ -153,6 +153,7 @@ mod tests {
             irradiance: [e; 3],
             solid_angle: 0.5,
             angular_radius: 0.0,
+            shadowed: None,
         }
     }
 
