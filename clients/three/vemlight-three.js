@@ -212,7 +212,7 @@ export class VemlightLights {
     this._disposed = false;
     this._lastSeq = null;
     this._clockOffsetMs = Infinity;
-    this._resizePool(this.options.shadowed);
+    this._resizePool(this._poolSize());
     if (this.options.url) this.connect();
   }
 
@@ -225,10 +225,8 @@ export class VemlightLights {
   setBudget({ lights, shadowed, maxError } = {}) {
     if (lights !== undefined) this.options.lights = lights;
     if (maxError !== undefined) this.options.maxError = maxError;
-    if (shadowed !== undefined && shadowed !== this.options.shadowed) {
-      this.options.shadowed = shadowed;
-      this._resizePool(shadowed);
-    }
+    if (shadowed !== undefined) this.options.shadowed = shadowed;
+    if (this._poolSize() !== this.slots.length) this._resizePool(this._poolSize());
     if (this.options.url) {
       this._attempt = 0;
       this.connect();
@@ -380,6 +378,11 @@ export class VemlightLights {
       }
     }
     this.stats.connected = false;
+  }
+
+  // One DirectionalLight per shadowed light the stream can send: min(K, N).
+  _poolSize() {
+    return Math.max(0, Math.min(this.options.shadowed, this.options.lights));
   }
 
   _resizePool(k) {
