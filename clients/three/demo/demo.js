@@ -53,7 +53,7 @@ scene.add(ground);
 const objects = [
   ["box", new THREE.BoxGeometry(1.2, 1.6, 1.2), [-1.8, 0.8, 0.6], lambert(0.6, 0.25, 0.2)],
   ["sphere", new THREE.SphereGeometry(0.7, 48, 24), [1.6, 0.7, 1.2], lambert(0.2, 0.35, 0.6)],
-  ["pole", new THREE.CylinderGeometry(0.1, 0.1, 2.4, 24), [0.3, 1.2, -1.2], lambert(0.7, 0.7, 0.7)],
+  ["pole", new THREE.CylinderGeometry(0.22, 0.22, 2.4, 32), [0.3, 1.2, -1.2], lambert(0.7, 0.7, 0.7)],
   ["knot", new THREE.TorusKnotGeometry(0.45, 0.15, 128, 16), [2.8, 1.1, -2.4], lambert(0.3, 0.6, 0.3)],
 ].map(([name, geometry, at, material]) => {
   const m = new THREE.Mesh(geometry, material);
