@@ -446,8 +446,20 @@ async fn the_demo_page_draws_the_live_lights_with_shadows() {
     );
 
     // The ground in an object's shadow against open ground, as the LightSet predicts.
+    // Ground points every 0.25 m around the objects, looked at twice.
+    let grid = Value::from(
+        (0..=40)
+            .flat_map(|i| {
+                (0..=32).map(move |j| {
+                    json!([-5.0 + 0.25 * f64::from(i), 0.0, -4.5 + 0.25 * f64::from(j)])
+                })
+            })
+            .collect::<Vec<_>>(),
+    );
     let m1 = cdp
-        .eval("vemlightDemo.measure().then(JSON.stringify)")
+        .eval(&format!(
+            "vemlightDemo.measure({{ at: {grid} }}).then(JSON.stringify)"
+        ))
         .await;
     let open = &m1["open"];
     assert!(open.is_object(), "no open ground in view: {m1}");
@@ -474,13 +486,6 @@ async fn the_demo_page_draws_the_live_lights_with_shadows() {
         check_shadows(&m1, "first look") > 0,
         "no shadow point in the sun's umbra: {m1}"
     );
-    let usable: Vec<&Value> = m1["objects"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|o| o["usable"] == true)
-        .collect();
-
     // The sun moves; the shadow follows: the points that were in the sun's shadow are lit.
     let sun_now =
         "JSON.stringify(vemlightDemo.client.lastPlan.shadowed.find((l) => l.id === SUN).direction)"
@@ -497,43 +502,59 @@ async fn the_demo_page_draws_the_live_lights_with_shadows() {
         );
         tokio::time::sleep(Duration::from_millis(250)).await;
     }
-    let old_points: Vec<Value> = usable.iter().map(|o| o["point"].clone()).collect();
     let m2 = cdp
         .eval(&format!(
-            "vemlightDemo.measure({{ at: {} }}).then(JSON.stringify)",
-            Value::from(old_points.clone())
+            "vemlightDemo.measure({{ at: {grid} }}).then(JSON.stringify)"
         ))
         .await;
     let moved = angle_deg(&m1["sun"]["direction"], &m2["sun"]["direction"]);
     assert_eq!(m1["sun"]["id"], m2["sun"]["id"], "the sun kept its id");
     assert!(moved > 15.0, "the sun moved only {moved:.1}°: {m2}");
+    // Each grid point's pixels agree with where the sun's shadow falls (by ray casting) at both
+    // looks, and some points the shadow covered are in the sun now, and dark before.
     let open2_r = m2["open"]["radiance"].as_f64().unwrap();
-    let mut lit = 0;
-    for (o, before) in usable.iter().zip(m2["at"].as_array().unwrap()) {
-        let ratio_before = o["radiance"].as_f64().unwrap() / open_r;
-        let ratio_after = before["radiance"].as_f64().unwrap_or(0.0) / open2_r;
-        eprintln!(
-            "{}: sun moved {moved:.1}°, old shadow point {ratio_before:.3} → {ratio_after:.3} of open ground",
-            o["name"]
-        );
-        // Was in the umbra, now sees the sun at its centre: clearly brighter, and as bright as
-        // open ground when its whole pixel window is in the sun.
-        let sun = m2["sun"]["id"].to_string();
-        if o["sunlight"] == "umbra" && before["V"][&sun].as_f64() == Some(1.0) {
-            let floor = if before["sunlight"] == "sunlit" {
-                0.85
-            } else {
-                0.5
-            };
-            assert!(
-                ratio_after > floor && ratio_after > ratio_before + 0.3,
-                "{}: the sun sees the old shadow point but its pixels stay dark ({ratio_before:.3} → {ratio_after:.3}): {m2}",
-                o["name"]
-            );
-            lit += 1;
+    let (mut judged, mut agree, mut uncovered) = (0, 0, 0);
+    for (a, b) in m1["at"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(m2["at"].as_array().unwrap())
+    {
+        let in_view = |p: &Value| p["seen"] == true && p["onScreen"] == true;
+        if !in_view(a) || !in_view(b) {
+            continue;
+        }
+        let r1 = a["radiance"].as_f64().unwrap() / open_r;
+        let r2 = b["radiance"].as_f64().unwrap() / open2_r;
+        for (p, r) in [(a, r1), (b, r2)] {
+            match p["sunlight"].as_str() {
+                Some("umbra") => {
+                    judged += 1;
+                    agree += usize::from(r < 0.3);
+                }
+                Some("sunlit") => {
+                    judged += 1;
+                    agree += usize::from(r > 0.85);
+                }
+                _ => {}
+            }
+        }
+        if a["sunlight"] == "umbra" && b["sunlight"] == "sunlit" && r1 < 0.3 && r2 > 0.85 {
+            uncovered += 1;
         }
     }
-    assert!(lit > 0, "no old shadow point came into the sun: {m1} {m2}");
+    eprintln!(
+        "sun moved {moved:.1}°: {agree} of {judged} grid pixels as the shadow geometry says; {uncovered} points left the shadow"
+    );
+    assert!(judged > 100, "too few grid points in view: {judged}");
+    assert!(
+        agree as f64 >= 0.95 * judged as f64,
+        "pixels and shadow geometry disagree: {agree} of {judged}: {m1} {m2}"
+    );
+    assert!(
+        uncovered >= 3,
+        "the shadow did not move off the ground it covered ({uncovered} points): {m1} {m2}"
+    );
     check_shadows(&m2, "after the move");
 
     // The frame rate at K = 4 (software GL), for the record.

@@ -160,23 +160,33 @@ function toLinear(c) {
   return v <= 0.04045 ? v / 12.92 : ((v + 0.055) / 1.055) ** 2.4;
 }
 
-// Mean scene radiance (luminance) in a (2r+1)² pixel window around world point p, read from the
-// drawing buffer: sRGB decoded, exposure divided out (meaningful with tonemap=linear).
-function radianceAt(p, r = 3) {
+// The drawing buffer, read once per measurement right after the render (before it is presented).
+function readFrame() {
   const gl = renderer.getContext();
   const w = gl.drawingBufferWidth, h = gl.drawingBufferHeight;
+  const data = new Uint8Array(4 * w * h);
+  gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, data);
+  return { w, h, data };
+}
+
+// Mean scene radiance (luminance) in a (2r+1)² pixel window around world point p: sRGB decoded,
+// exposure divided out (meaningful with tonemap=linear).
+function radianceAt(frame, p, r = 3) {
+  const { w, h, data } = frame;
   const ndc = p.clone().project(camera);
   const px = Math.round(((ndc.x + 1) / 2) * w), py = Math.round(((ndc.y + 1) / 2) * h);
   const onScreen = ndc.z < 1 && px >= r + 4 && py >= r + 4 && px < w - r - 4 && py < h - r - 4;
   if (!onScreen) return { onScreen, pixel: [px, h - py] };
-  const n = 2 * r + 1, buf = new Uint8Array(4 * n * n);
-  gl.readPixels(px - r, py - r, n, n, gl.RGBA, gl.UNSIGNED_BYTE, buf);
-  let sum = 0, max = 0;
-  for (let i = 0; i < n * n; i++) {
-    sum += luminance([toLinear(buf[4 * i]), toLinear(buf[4 * i + 1]), toLinear(buf[4 * i + 2])]);
-    max = Math.max(max, buf[4 * i], buf[4 * i + 1], buf[4 * i + 2]);
+  let sum = 0, max = 0, n = 0;
+  for (let y = py - r; y <= py + r; y++) {
+    for (let x = px - r; x <= px + r; x++) {
+      const i = 4 * (y * w + x);
+      sum += luminance([toLinear(data[i]), toLinear(data[i + 1]), toLinear(data[i + 2])]);
+      max = Math.max(max, data[i], data[i + 1], data[i + 2]);
+      n++;
+    }
   }
-  return { onScreen, pixel: [px, h - py], radiance: sum / (n * n) / renderer.toneMappingExposure, clipped: max >= 255 };
+  return { onScreen, pixel: [px, h - py], radiance: sum / n / renderer.toneMappingExposure, clipped: max >= 255 };
 }
 
 // Whether the camera sees ground point p (no object in front of it).
@@ -195,7 +205,8 @@ function visibility(p, dir, a) {
   const t1 = new THREE.Vector3().crossVectors(d, Math.abs(d.y) < 0.9 ? _up : new THREE.Vector3(1, 0, 0)).normalize();
   const t2 = new THREE.Vector3().crossVectors(d, t1);
   const rays = [[0, 0]];
-  for (let k = 0; k < 12; k++) {
+  // A light of small extent (the sun: 0.0046 rad) is one ray; a wider one a disc of 13.
+  for (let k = 0; k < (a < 0.01 ? 0 : 12); k++) {
     const phi = (k * 2 * Math.PI) / 12, s = k % 2 ? 0.45 : 0.85;
     rays.push([s * Math.cos(phi), s * Math.sin(phi)]);
   }
@@ -237,11 +248,12 @@ function measureNow({ at = [] } = {}) {
   // The dominant shadowed light on the ground: its shadow of each object's centre.
   const sun = shadowed.reduce((b, l) => (!b || l.intensity * l.direction[1] > b.intensity * b.direction[1] ? l : b), null);
   const R = 3;
-  const sample = (p) => ({
+  const frame = readFrame();
+  const sample = (p, withV = true) => ({
     point: p.toArray(),
     seen: cameraSees(p),
-    ...radianceAt(p, R),
-    V: vis(p),
+    ...radianceAt(frame, p, R),
+    ...(withV ? { V: vis(p) } : {}),
     sunlight: sun ? footprintVisibility(p, sun, R + 2) : "none",
   });
   const objs = objects.map((o) => {
@@ -281,7 +293,7 @@ function measureNow({ at = [] } = {}) {
     sun: sun ? { id: sun.id, direction: sun.direction } : null,
     objects: objs,
     open,
-    at: at.map((p) => sample(new THREE.Vector3(...p))),
+    at: at.map((p) => sample(new THREE.Vector3(...p), false)),
   };
 }
 
