@@ -12,6 +12,7 @@
 
 mod accept;
 mod auth;
+mod demo;
 pub mod error;
 pub mod query;
 pub mod stream;
@@ -166,6 +167,8 @@ pub fn app(state: AppState) -> Router {
     let cors = state.cors.layer();
     let router = Router::new()
         .route("/", get(viewer))
+        .route("/demo", get(demo::page))
+        .route("/demo/{file}", get(demo::asset))
         .route("/healthz", get(healthz))
         .merge(protected)
         // Uploads are limited by `Uploads::max_body`, checked in the handler.
