@@ -52,16 +52,15 @@ fn section_numbers(text: &str) -> Vec<(String, usize)> {
                 .take_while(|c| c.is_ascii_digit() || *c == '.')
                 .collect();
             let num = num.trim_end_matches('.').to_string();
+            let rest = &part[num.len()..];
             if !num.is_empty() {
                 out.push((num, line_no + 1));
             }
             // A range such as §2–3.
-            if let Some(end) = part.strip_prefix(|c: char| c.is_ascii_digit()) {
-                if let Some(end) = end.strip_prefix('–') {
-                    let n: String = end.chars().take_while(|c| c.is_ascii_digit()).collect();
-                    if !n.is_empty() {
-                        out.push((n, line_no + 1));
-                    }
+            if let Some(end) = rest.strip_prefix('–') {
+                let n: String = end.chars().take_while(|c| c.is_ascii_digit()).collect();
+                if !n.is_empty() {
+                    out.push((n, line_no + 1));
                 }
             }
         }

@@ -151,19 +151,14 @@ pub fn mark(lights: &mut [Light], k: usize, previous: &[u32]) -> Vec<u32> {
             marked.push(i);
         }
     }
-    loop {
-        let Some(&dimmest) = marked
-            .iter()
-            .min_by(|&&a, &&b| worth(&lights[a]).total_cmp(&worth(&lights[b])))
-        else {
-            break;
-        };
-        let Some(&brightest_unmarked) = order.iter().find(|i| !marked.contains(i)) else {
-            break;
-        };
-        if worth(&lights[brightest_unmarked]) > SWAP_RATIO * worth(&lights[dimmest]) {
-            let at = marked.iter().position(|&i| i == dimmest).expect("present");
-            marked[at] = brightest_unmarked;
+    // Swap while the best unmarked light is worth SWAP_RATIO times the least marked one.
+    while let (Some(at), Some(&best)) = (
+        (0..marked.len())
+            .min_by(|&a, &b| worth(&lights[marked[a]]).total_cmp(&worth(&lights[marked[b]]))),
+        order.iter().find(|i| !marked.contains(i)),
+    ) {
+        if worth(&lights[best]) > SWAP_RATIO * worth(&lights[marked[at]]) {
+            marked[at] = best;
         } else {
             break;
         }

@@ -13,6 +13,7 @@
 
 mod accept;
 mod auth;
+mod demo;
 pub mod error;
 mod handlers;
 pub mod query;
@@ -42,6 +43,8 @@ pub fn app(state: AppState) -> Router {
     let cors = state.cors.layer();
     let router = Router::new()
         .route("/", get(handlers::viewer))
+        .route("/demo", get(demo::page))
+        .route("/demo/{file}", get(demo::asset))
         .route("/healthz", get(handlers::healthz))
         .merge(protected)
         // Uploads are limited by `Uploads::max_body`, checked in the handler.
