@@ -385,6 +385,11 @@ async fn bad_stream_parameters_are_refused() {
         "max_hz=nan",
         "max_hz=1e-19",
         "max_hz=1e-300",
+        "max_error=0",
+        "max_error=2",
+        "max_error=nan",
+        "lights=8&shadowed=9",
+        "shadowed=-1",
     ] {
         let url = format!("ws://{}/v1/stream?{query}", s.addr);
         match tokio_tungstenite::connect_async(url).await {
@@ -1408,4 +1413,126 @@ async fn an_abusive_client_is_dropped() {
     assert!(ended, "the server kept a client that sent 1 MiB");
     let mut good = connect(s.addr, "", None).await;
     next_set(&mut good, Duration::from_secs(5)).await;
+}
+
+fn f64s(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
+}
+
+fn luminance(rgb: &[f64]) -> f64 {
+    0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]
+}
+
+/// `shadowed=K`: every light says whether it is shadowed, exactly K are, they are the ones most
+/// worth it up to the swap hysteresis, and `sh9_unshadowed` is `sh9` less the marked lights
+/// (checked on the energy term, where the deltas' projection is exact); on the stream and on
+/// `/v1/lights/latest`, schema-valid.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_shadow_budget_marks_k_lights_and_gives_the_rest_as_sh() {
+    let s = start_default(30.0).await;
+    let validator = lightset_validator();
+    let mut ws = connect(s.addr, "?lights=32&shadowed=4", None).await;
+    let worth = |l: &serde_json::Value| {
+        let y = f64s(&l["to_light"])[1];
+        luminance(&f64s(&l["irradiance"])) * (1.0 + y).max(0.0) * 0.5
+    };
+    for _ in 0..10 {
+        let doc = next_set(&mut ws, Duration::from_secs(5)).await;
+        assert_valid(&validator, &doc);
+        let lights = doc["lights"].as_array().unwrap();
+        assert_eq!(lights.len(), 32);
+        let (marked, rest): (Vec<_>, Vec<_>) = lights
+            .iter()
+            .partition(|l| l["shadowed"].as_bool().expect("every light says"));
+        assert_eq!(marked.len(), 4);
+        let least_marked = marked
+            .iter()
+            .map(|l| worth(l))
+            .fold(f64::INFINITY, f64::min);
+        let best_rest = rest.iter().map(|l| worth(l)).fold(0.0, f64::max);
+        assert!(
+            best_rest <= 1.25 * least_marked + 1e-9,
+            "an unmarked light ({best_rest}) outshines a marked one ({least_marked}) past the ratio"
+        );
+        let sh9 = f64s(&doc["sh9"]);
+        let rem = f64s(&doc["sh9_unshadowed"]);
+        assert_eq!(rem.len(), 27);
+        for c in 0..3 {
+            let marked_energy: f64 = marked.iter().map(|l| f64s(&l["irradiance"])[c]).sum();
+            let expected = sh9[c] - 0.282_094_791 * marked_energy;
+            assert!(
+                (rem[c] - expected).abs() <= 1e-4 * sh9[c].abs().max(1e-6),
+                "channel {c}: {} vs {expected}",
+                rem[c]
+            );
+        }
+    }
+    // Without a budget, no marks and no remainder.
+    let plain = get_json(
+        &reqwest::Client::new(),
+        &format!("http://{}/v1/lights/latest", s.addr),
+    )
+    .await;
+    assert!(plain.get("sh9_unshadowed").is_none());
+    assert!(plain["lights"][0].get("shadowed").is_none());
+    // The latest set with a budget.
+    let doc = get_json(
+        &reqwest::Client::new(),
+        &format!("http://{}/v1/lights/latest?lights=16&shadowed=2", s.addr),
+    )
+    .await;
+    assert_valid(&validator, &doc);
+    let marked = doc["lights"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|l| l["shadowed"] == true)
+        .count();
+    assert_eq!(marked, 2);
+}
+
+/// `max_error=E`: each set holds the fewest lights of the ladder (powers of two, then N) that
+/// meet E, says so in `diagnostics`, and the count holds still over a second of frames of a
+/// slowly turning scene.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn max_error_gives_the_fewest_lights_and_holds_the_count() {
+    let s = start_default(30.0).await;
+    let validator = lightset_validator();
+    let mut ws = connect(s.addr, "?lights=64&max_error=0.03", None).await;
+    let mut chosen = Vec::new();
+    for k in 0..40 {
+        let doc = next_set(&mut ws, Duration::from_secs(5)).await;
+        assert_valid(&validator, &doc);
+        let d = &doc["diagnostics"];
+        let n = d["lights_chosen"].as_u64().expect("lights_chosen") as usize;
+        assert!(
+            [1, 2, 4, 8, 16, 32, 64].contains(&n),
+            "{n} is not on the ladder"
+        );
+        assert!(doc["lights"].as_array().unwrap().len() <= n);
+        assert_eq!(d["lights_requested"], 64);
+        assert_eq!(d["max_error"], 0.03);
+        let error = d["estimated_error"].as_f64().expect("estimated_error");
+        if k == 0 {
+            // The first set: the fewest that meet the target, or all 64.
+            assert!(error <= 0.03 || n == 64, "{n} lights, error {error}");
+            assert_eq!(d["max_error_met"], error <= 0.03);
+        }
+        chosen.push(n);
+    }
+    let changes = chosen.windows(2).filter(|w| w[0] != w[1]).count();
+    assert!(changes <= 2, "the count flapped: {chosen:?}");
+    assert!(
+        chosen[0] < 64,
+        "a 3 % target needs fewer than 64 lights here: {chosen:?}"
+    );
+    // A tighter target needs at least as many lights.
+    let mut tight = connect(s.addr, "?lights=64&max_error=0.005", None).await;
+    let doc = next_set(&mut tight, Duration::from_secs(5)).await;
+    let n_tight = doc["diagnostics"]["lights_chosen"].as_u64().unwrap() as usize;
+    assert!(n_tight >= chosen[0], "{n_tight} < {}", chosen[0]);
 }

@@ -184,3 +184,103 @@ pub fn to_csv(rows: &[BudgetRow]) -> String {
     }
     s
 }
+
+/// The error targets whose adaptive count is measured over time.
+pub const ADAPTIVE_TARGETS: [f64; 2] = [0.01, 0.02];
+
+/// The most lights of the measured adaptive streams: the daemon's default count.
+pub const ADAPTIVE_MAX: usize = 64;
+
+/// How an adaptive stream's light count behaved over one sequence.
+#[derive(Clone, Debug)]
+pub struct AdaptiveRow {
+    pub sequence: String,
+    pub target: f64,
+    pub frames: usize,
+    /// Count changes after the first frame.
+    pub changes: usize,
+    /// Changes per minute at `fps`.
+    pub per_minute: f64,
+    pub mean_count: f64,
+    /// Share of frames whose served count met the target.
+    pub met: f64,
+}
+
+/// Runs an adaptive stream ([`AdaptiveCount`](crate::lights::budget::AdaptiveCount), as the
+/// daemon does, video mode on) over `frames` frames of `render` at `fps`.
+pub fn adaptive_run(
+    sequence: &str,
+    frames: usize,
+    fps: f64,
+    target: f64,
+    mut render: impl FnMut(usize) -> EnvMap,
+) -> AdaptiveRow {
+    use crate::lights::budget::AdaptiveCount;
+    use crate::lights::error::IrradianceReference;
+    let mut ex = Extractor::new();
+    ex.set_video(true);
+    let mut adaptive = AdaptiveCount::new(ADAPTIVE_MAX, target);
+    let (mut changes, mut count_sum, mut met) = (0usize, 0usize, 0usize);
+    for k in 0..frames {
+        let map = render(k);
+        let image = ex.resample(&map, Domain::Sphere, None);
+        let counts = adaptive.counts_needed();
+        let frame = ex.extract_frame(
+            &map,
+            &image,
+            &FrameRequest {
+                method: Method::Voronoi,
+                counts: &counts,
+                sh9: false,
+            },
+        );
+        let reference = IrradianceReference::from_domain_image(&image);
+        let before = adaptive.count();
+        let (served, error) = adaptive.update(|n| {
+            counts
+                .iter()
+                .position(|&c| c == n)
+                .map(|i| reference.error(&frame.extractions[i].lights).rel_rms)
+        });
+        if before != 0 && adaptive.count() != before {
+            changes += 1;
+        }
+        count_sum += served;
+        if error.is_some_and(|e| e <= target) {
+            met += 1;
+        }
+    }
+    let minutes = frames as f64 / fps / 60.0;
+    AdaptiveRow {
+        sequence: sequence.into(),
+        target,
+        frames,
+        changes,
+        per_minute: changes as f64 / minutes,
+        mean_count: count_sum as f64 / frames as f64,
+        met: met as f64 / frames as f64,
+    }
+}
+
+/// The adaptive table.
+pub fn adaptive_markdown(rows: &[AdaptiveRow]) -> String {
+    let mut s = format!(
+        "At most {ADAPTIVE_MAX} lights, 30 frames/s; a change is one step of the count (up at once, \
+         down after 30 frames at 0.8 E).\n\n\
+         | sequence | E | frames | count changes | per minute | mean count | frames meeting E |\n\
+         |---|---|---|---|---|---|---|\n"
+    );
+    for r in rows {
+        s.push_str(&format!(
+            "| {} | {:.0} % | {} | {} | {:.1} | {:.1} | {:.0} % |\n",
+            r.sequence,
+            100.0 * r.target,
+            r.frames,
+            r.changes,
+            r.per_minute,
+            r.mean_count,
+            100.0 * r.met
+        ));
+    }
+    s
+}

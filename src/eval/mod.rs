@@ -172,7 +172,37 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
         budget_rows.extend(budget::evaluate_map(name, map, truth));
     }
     write(&opts.out.join("budget.csv"), &budget::to_csv(&budget_rows))?;
-    let budget_md = budget::markdown(&budget_rows);
+    // The adaptive count over time: the default sky of `vemlight serve`, and a map turning.
+    let adaptive_frames = if opts.quick { 300 } else { 1800 };
+    let mut adaptive_rows = Vec::new();
+    for target in budget::ADAPTIVE_TARGETS {
+        bar.set_message(format!("adaptive count, E = {target}"));
+        let mut sky = crate::sky::SyntheticSky::new(crate::sky::SyntheticConfig::default());
+        adaptive_rows.push(budget::adaptive_run(
+            "default sky (serve)",
+            adaptive_frames,
+            30.0,
+            target,
+            |k| sky.render(k as f64 / 30.0),
+        ));
+        if let Some((name, map)) = maps.iter().find(|(n, _)| n == SEQUENCE_MAP) {
+            let dirs = LatLongDirs::new(map.width, map.height);
+            let step = ROTATION_DEG_PER_FRAME.to_radians();
+            adaptive_rows.push(budget::adaptive_run(
+                &format!("{name}:yaw"),
+                adaptive_frames,
+                30.0,
+                target,
+                |k| dirs.rotated(map, DQuat::from_rotation_y(step * k as f64)),
+            ));
+        }
+    }
+    let budget_md = format!(
+        "{}
+{}",
+        budget::markdown(&budget_rows),
+        budget::adaptive_markdown(&adaptive_rows)
+    );
     write(&opts.out.join("budget.md"), &budget_md)?;
 
     // 2. Temporal stability.
