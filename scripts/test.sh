@@ -35,8 +35,9 @@ export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 # fails here, and runs the two commands behind the docs' figures once, small: `vemlight bench`
 # (two short rounds) and `vemlight eval --quick`, writing into a scratch folder, not docs/.
 if [ $# -eq 0 ]; then
-  cargo bench --no-run
-  cargo build --release
+  # Every target in the release profile at once (benches too), so `cargo test --release` below
+  # reuses the build instead of compiling the library a second time for the bench profile.
+  cargo build --release --all-targets
   scratch="$(mktemp -d)"
   cp docs/EVALUATION.md "$scratch/"
   target/release/vemlight bench --rounds 2 --per-round 3

@@ -173,7 +173,7 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
     }
     write(&opts.out.join("budget.csv"), &budget::to_csv(&budget_rows))?;
     // The adaptive count over time: the default sky of `vemlight serve`, and a map turning.
-    let adaptive_frames = if opts.quick { 300 } else { 1800 };
+    let adaptive_frames = if opts.quick { 150 } else { 1800 };
     let mut adaptive_rows = Vec::new();
     for target in budget::ADAPTIVE_TARGETS {
         bar.set_message(format!("adaptive count, E = {target}"));
