@@ -14,7 +14,6 @@ mod common;
 
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value, json};
-use std::io::BufRead;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -384,15 +383,7 @@ async fn the_demo_page_draws_the_live_lights_with_shadows() {
         .expect("runs chromium");
     let stderr = chrome.stderr.take().unwrap();
     let _chrome = Killed(chrome);
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        for line in std::io::BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-        {
-            let _ = tx.send(line);
-        }
-    });
+    let rx = common::stderr_lines(stderr);
     let devtools = loop {
         let line = rx
             .recv_timeout(Duration::from_secs(20))

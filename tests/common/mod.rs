@@ -105,7 +105,6 @@ pub fn dwa_with_a_huge_ac_count() -> Vec<u8> {
 /// Starts `vemlight serve --bind 127.0.0.1:0 ARGS` (stdin piped) and reads the address it
 /// listens on from its log.
 pub fn spawn_serve(args: &[&str]) -> (std::process::Child, std::net::SocketAddr) {
-    use std::io::BufRead;
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
         .args(["serve", "--bind", "127.0.0.1:0"])
         .args(args)
@@ -116,15 +115,7 @@ pub fn spawn_serve(args: &[&str]) -> (std::process::Child, std::net::SocketAddr)
         .spawn()
         .unwrap();
     let stderr = child.stderr.take().unwrap();
-    let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::spawn(move || {
-        for line in std::io::BufReader::new(stderr)
-            .lines()
-            .map_while(Result::ok)
-        {
-            let _ = tx.send(line);
-        }
-    });
+    let rx = stderr_lines(stderr);
     let addr = loop {
         let line = rx
             .recv_timeout(std::time::Duration::from_secs(20))
@@ -134,4 +125,20 @@ pub fn spawn_serve(args: &[&str]) -> (std::process::Child, std::net::SocketAddr)
         }
     };
     (child, addr)
+}
+
+/// A child's standard error, line by line, read on a thread of its own (so the child never
+/// blocks on a full pipe).
+pub fn stderr_lines(stderr: std::process::ChildStderr) -> std::sync::mpsc::Receiver<String> {
+    use std::io::BufRead;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let _ = tx.send(line);
+        }
+    });
+    rx
 }
