@@ -286,7 +286,7 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
         write(doc, &text)?;
     }
     Ok(format!(
-        "{accuracy_md}\n{per_map_md}\n{frontier_md}\n{temporal_md}\n{run_md}"
+        "{accuracy_md}\n{per_map_md}\n{frontier_md}\n{budget_md}\n{temporal_md}\n{run_md}"
     ))
 }
 
