@@ -75,3 +75,67 @@ fn the_stream_client_reconnects_and_keeps_the_latest_set() {
     assert_eq!(client.connections(), 2);
     drop(feed); // stops the thread promptly
 }
+
+/// `vemlight view --shadowed K` on a stream: the URL asks the daemon for `shadowed=K`; a set that
+/// comes with marks is drawn as marked, and one without (a daemon that ignores the parameter) is
+/// marked by the client, K lights.
+#[test]
+#[allow(clippy::result_large_err)]
+fn a_shadow_budget_is_asked_of_the_stream_and_kept_by_the_client() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let unmarked = a_lightset(1);
+    let mut marked: LightSet = serde_json::from_str(&a_lightset(2)).unwrap();
+    for (i, l) in marked.lights.iter_mut().enumerate() {
+        l.shadowed = Some(i == 3); // the daemon's choice, whatever it is, is kept
+    }
+    let messages = [unmarked, serde_json::to_string(&marked).unwrap()];
+    let server = std::thread::spawn(move || {
+        let mut uris = Vec::new();
+        for msg in messages {
+            let (tcp, _) = listener.accept().unwrap();
+            let mut ws = tungstenite::accept_hdr(
+                tcp,
+                |req: &tungstenite::handshake::server::Request,
+                 mut resp: tungstenite::handshake::server::Response| {
+                    uris.push(req.uri().to_string());
+                    resp.headers_mut()
+                        .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
+                    Ok(resp)
+                },
+            )
+            .unwrap();
+            ws.send(tungstenite::Message::text(msg)).unwrap();
+            ws.close(None).unwrap();
+            let deadline = Instant::now() + Duration::from_secs(2);
+            while Instant::now() < deadline && ws.read().is_ok() {}
+        }
+        uris
+    });
+    let url = format!("ws://127.0.0.1:{port}/v1/stream?lights=4");
+    let mut feed = LightFeed::open_with_budget(&Source::parse(&url), 4, Some(2)).unwrap();
+    let shadowed = |set: &LightSet| -> Vec<u32> {
+        assert!(
+            set.lights.iter().all(|l| l.shadowed.is_some()),
+            "every light marked"
+        );
+        set.lights
+            .iter()
+            .filter(|l| l.shadowed == Some(true))
+            .map(|l| l.id)
+            .collect()
+    };
+    let first = feed.wait_first(Duration::from_secs(10)).unwrap();
+    assert_eq!(first.seq, 1);
+    assert_eq!(shadowed(&first).len(), 2, "marked by the client");
+    let second = feed.wait_first(Duration::from_secs(10)).unwrap();
+    assert_eq!(second.seq, 2);
+    assert_eq!(
+        shadowed(&second),
+        [marked.lights[3].id],
+        "the daemon's marks"
+    );
+    let uris = server.join().unwrap();
+    assert_eq!(uris, vec!["/v1/stream?lights=4&shadowed=2".to_owned(); 2]);
+    drop(feed);
+}

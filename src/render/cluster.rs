@@ -14,6 +14,12 @@
 //! each. Hysteresis keeps groups from popping: a light stays in last frame's group while it is
 //! within 1.5 times its radius of that group's axis, and only joins a new group within its radius.
 //! With clustering off every light is its own group.
+//!
+//! A shadow budget (docs/RENDER.md, "The shadow budget"): when the lights carry marks
+//! (`Light::shadowed`, `budget::mark`), the lights marked `Some(false)` are grouped apart, by a
+//! second clusterer, into groups with `shadowed: false`, which get no shadow map and are shaded as
+//! unoccluded. They are still grouped (rather than put in one group) so that culling by normal
+//! extent keeps working for them. Lights without a mark are shadowed, as before.
 
 use crate::lights::Light;
 use glam::Vec3;
@@ -29,6 +35,9 @@ pub struct Group {
     /// Members are `Grouping::order[first..first + count]`.
     pub first: u32,
     pub count: u32,
+    /// Whether the group gets a shadow map; `false` for the lights a shadow budget leaves
+    /// unshadowed (their keys come from another clusterer and may repeat a shadowed group's).
+    pub shadowed: bool,
 }
 
 /// The lights of a frame, grouped.
@@ -57,6 +66,9 @@ pub struct Clusterer {
     slots: Vec<Slot>,
     assigned: Vec<Option<usize>>,
     by_power: Vec<usize>,
+    /// Groups the lights a shadow budget leaves unshadowed, with its own hysteresis; made when
+    /// the first such light arrives.
+    unmarked: Option<Box<Clusterer>>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -85,6 +97,7 @@ impl Clusterer {
             slots: Vec::new(),
             assigned: Vec::new(),
             by_power: Vec::new(),
+            unmarked: None,
         }
     }
 
@@ -105,8 +118,38 @@ impl Clusterer {
         }
     }
 
-    /// Groups `lights` into `out` (cleared first).
+    /// Groups `lights` into `out` (cleared first): the shadowed groups first, then (when some
+    /// lights are marked `shadowed: Some(false)`) the unshadowed ones.
     pub fn group(&mut self, lights: &[Light], out: &mut Grouping) {
+        if !lights.iter().any(|l| l.shadowed == Some(false)) {
+            self.group_all(lights, out);
+            return;
+        }
+        let (lit, unlit): (Vec<usize>, Vec<usize>) =
+            (0..lights.len()).partition(|&i| lights[i].shadowed != Some(false));
+        let subset = |idx: &[usize]| idx.iter().map(|&i| lights[i]).collect::<Vec<Light>>();
+        self.group_all(&subset(&lit), out);
+        for o in &mut out.order {
+            *o = lit[*o as usize] as u32;
+        }
+        let degrees = self.delta.to_degrees();
+        let unmarked = self
+            .unmarked
+            .get_or_insert_with(|| Box::new(Clusterer::new(degrees)));
+        let mut rest = Grouping::default();
+        unmarked.group_all(&subset(&unlit), &mut rest);
+        let base = out.order.len() as u32;
+        out.groups.extend(rest.groups.into_iter().map(|g| Group {
+            first: g.first + base,
+            shadowed: false,
+            ..g
+        }));
+        out.order
+            .extend(rest.order.into_iter().map(|o| unlit[o as usize] as u32));
+    }
+
+    /// Groups every light of `lights`, all shadowed.
+    fn group_all(&mut self, lights: &[Light], out: &mut Grouping) {
         out.groups.clear();
         out.order.clear();
         if !self.enabled() {
@@ -117,6 +160,7 @@ impl Clusterer {
                     axis: dir(l),
                     first: i as u32,
                     count: 1,
+                    shadowed: true,
                 });
                 out.order.push(i as u32);
             }
@@ -205,6 +249,7 @@ impl Clusterer {
                     axis: self.slots[s].axis(),
                     first: 0,
                     count: 0,
+                    shadowed: true,
                 });
             }
             out.groups[group_of_slot[s].unwrap()].count += 1;
@@ -323,6 +368,42 @@ mod tests {
         let even = [light(0, 0.0, 30.0, 1.0), light(1, 8.0, 30.0, 1.0)];
         Clusterer::new(3.0).group(&even, &mut g);
         assert_eq!(g.groups.len(), 2, "{g:?}");
+    }
+
+    #[test]
+    fn lights_a_budget_leaves_unshadowed_are_grouped_apart_without_a_map() {
+        // Two lights side by side (they would share a group), one marked, one not; a third unmarked.
+        let mut lights = [
+            light(0, 0.0, 30.0, 10.0),
+            light(1, 1.0, 30.0, 8.0),
+            light(2, 120.0, 40.0, 1.0),
+        ];
+        lights[0].shadowed = Some(true);
+        lights[1].shadowed = Some(false);
+        lights[2].shadowed = Some(false);
+        let mut c = Clusterer::new(3.0);
+        let mut g = Grouping::default();
+        c.group(&lights, &mut g);
+        assert_eq!(g.groups.len(), 3, "{g:?}");
+        assert!(g.groups[0].shadowed && g.groups[0].count == 1);
+        assert_eq!(g.order[0], 0);
+        assert!(g.groups[1..].iter().all(|g| !g.shadowed));
+        let mut order = g.order.clone();
+        order.sort_unstable();
+        assert_eq!(order, [0, 1, 2], "every light once");
+        for grp in &g.groups {
+            for &i in &g.order[grp.first as usize..(grp.first + grp.count) as usize] {
+                assert_eq!(grp.shadowed, lights[i as usize].shadowed == Some(true));
+            }
+        }
+        // Without marks, the same lights are all shadowed and the first two share a map.
+        let plain = lights.map(|l| Light {
+            shadowed: None,
+            ..l
+        });
+        Clusterer::new(3.0).group(&plain, &mut g);
+        assert_eq!(g.groups.len(), 2, "{g:?}");
+        assert!(g.groups.iter().all(|g| g.shadowed));
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! The overlay (`shaders/overlay.wgsl`): the light directions in a corner, as in the paper's Figure 1,
-//! and a status line (frame rate, lights, shadow maps drawn).
+//! and a status line (frame rate, lights, shadow maps drawn, and with a shadow budget how many
+//! lights are shadowed: "shadowed 4 of 64").
 //!
 //! Input: the frame's [`Light`]s and a [`Status`]. Output: instanced quads drawn over the tonemapped
 //! frame. The disk is an azimuthal equidistant projection of the whole sphere around the zenith:
@@ -34,6 +35,9 @@ pub struct Status {
     pub fps: Option<f32>,
     pub lights: usize,
     pub maps_drawn: u32,
+    /// With a shadow budget (the lights carry `shadowed` marks): how many are marked, i.e. drawn
+    /// with a shadow map; the rest are drawn unoccluded.
+    pub shadowed: Option<usize>,
     /// The stream is down and the lights shown are the last ones received.
     pub stale: bool,
 }
@@ -184,18 +188,7 @@ impl OverlayPass {
             );
         }
         // The status line under the disk.
-        self.text.clear();
-        if let Some(fps) = status.fps {
-            let _ = write!(self.text, "{fps:.1} fps ");
-        }
-        let _ = write!(
-            self.text,
-            "{} lights {} maps",
-            status.lights, status.maps_drawn
-        );
-        if status.stale {
-            self.text.push_str(" ..."); // the stream is down; these are the last lights received
-        }
+        status_text(status, &mut self.text);
         let px = (h / 160.0).floor().max(1.0);
         let origin = [margin, c[1] + radius + margin];
         self.push_text(origin, px);
@@ -245,6 +238,22 @@ impl OverlayPass {
     }
 }
 
+/// The status line: frame rate, lights, shadow maps drawn, the shadow budget, and "..." while the
+/// stream is down.
+fn status_text(status: &Status, out: &mut String) {
+    out.clear();
+    if let Some(fps) = status.fps {
+        let _ = write!(out, "{fps:.1} fps ");
+    }
+    let _ = write!(out, "{} lights {} maps", status.lights, status.maps_drawn);
+    if let Some(k) = status.shadowed {
+        let _ = write!(out, " shadowed {k} of {}", status.lights);
+    }
+    if status.stale {
+        out.push_str(" ..."); // the stream is down; these are the last lights received
+    }
+}
+
 /// A 3 × 5 bitmap glyph, one row per entry, most significant of 3 bits on the left.
 /// Letters the status line does not use are drawn as a small box.
 fn glyph(c: char) -> [u8; 5] {
@@ -270,7 +279,39 @@ fn glyph(c: char) -> [u8; 5] {
         't' => [0b010, 0b111, 0b010, 0b010, 0b011],
         'm' => [0b000, 0b111, 0b111, 0b101, 0b101],
         'a' => [0b000, 0b110, 0b011, 0b101, 0b111],
+        'd' => [0b001, 0b001, 0b111, 0b101, 0b111],
+        'o' => [0b000, 0b111, 0b101, 0b101, 0b111],
+        'w' => [0b000, 0b101, 0b101, 0b111, 0b111],
+        'e' => [0b000, 0b111, 0b111, 0b100, 0b111],
         ' ' => [0; 5],
         _ => [0b000, 0b111, 0b101, 0b111, 0b000],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_status_line_shows_the_shadow_budget_when_there_is_one() {
+        let mut text = String::new();
+        let status = Status {
+            lights: 64,
+            maps_drawn: 3,
+            ..Status::default()
+        };
+        status_text(&status, &mut text);
+        assert_eq!(text, "64 lights 3 maps");
+        status_text(
+            &Status {
+                shadowed: Some(4),
+                ..status
+            },
+            &mut text,
+        );
+        assert_eq!(text, "64 lights 3 maps shadowed 4 of 64");
+        // Every character of it has a glyph (the fallback box is for letters never shown).
+        let fallback = glyph('?');
+        assert!(text.chars().all(|c| glyph(c) != fallback), "{text}");
     }
 }

@@ -6,7 +6,8 @@
 //! it cost ([`FrameStats`]).
 //!
 //! A frame, in order: group the lights ([`cluster`](super::cluster)), (re)draw the shadow maps
-//! that need it ([`shadow`](super::shadow)), shade every pixel into a linear HDR target
+//! that need it ([`shadow`](super::shadow); with a shadow budget, only the marked lights' groups
+//! have maps), shade every pixel into a linear HDR target
 //! ([`shading`]), tonemap it to the display ([`tonemap`](super::tonemap)) and draw
 //! the [`overlay`](super::overlay). Everything is built in [`Renderer::new`]; [`Renderer::render`]
 //! writes buffers and records passes, and uploads lights only when they changed (the shape of
@@ -81,7 +82,8 @@ impl Options {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FrameStats {
     pub lights: u32,
-    /// Shadow groups (= shadow maps in use).
+    /// Shadow groups with a map (= shadow maps in use; a shadow budget's unshadowed lights are
+    /// grouped without one).
     pub groups: u32,
     /// Shadow maps drawn this frame.
     pub maps_drawn: u32,
@@ -284,13 +286,20 @@ impl Renderer {
         );
         let stats = FrameStats {
             lights: self.lights.len() as u32,
-            groups: self.grouping.groups.len() as u32,
+            groups: self.grouping.groups.iter().filter(|g| g.shadowed).count() as u32,
             maps_drawn,
         };
         if o.overlay {
+            let marked = self.lights.iter().any(|l| l.shadowed.is_some());
             let status = Status {
                 lights: self.lights.len(),
                 maps_drawn,
+                shadowed: marked.then(|| {
+                    self.lights
+                        .iter()
+                        .filter(|l| l.shadowed == Some(true))
+                        .count()
+                }),
                 ..*status
             };
             self.overlay

@@ -29,7 +29,8 @@ pub fn shadow_size_for(width: u32, height: u32) -> u32 {
 
 /// Depth format of the shadow maps.
 pub const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-/// "This group has no shadow map" (more groups than the device allows layers): shaded as lit.
+/// "This group has no shadow map" (more groups than the device allows layers, or a group a shadow
+/// budget leaves unshadowed): shaded as lit.
 pub const NO_LAYER: u32 = u32::MAX;
 /// Smallest array allocated (layers); it grows by powers of two as groups appear.
 const MIN_LAYERS: u32 = 8;
@@ -429,14 +430,16 @@ impl ShadowMaps {
     ) -> u32 {
         self.frame += 1;
         let frame = self.frame;
-        if groups.len() as u32 > self.capacity {
-            self.grow(groups.len() as u32);
+        let mapped = groups.iter().filter(|g| g.shadowed).count() as u32;
+        if mapped > self.capacity {
+            self.grow(mapped);
         }
         out.clear();
         self.redraw.clear();
-        // Pass 1: groups that already hold a layer keep it.
+        // Pass 1: groups that already hold a layer keep it; groups a shadow budget leaves
+        // unshadowed get none (their keys are another clusterer's, so they are not looked up).
         out.extend(groups.iter().map(|g| match self.layer_of_key.get(&g.key) {
-            Some(&layer) => {
+            Some(&layer) if g.shadowed => {
                 let l = self.layers[layer as usize].as_mut().expect("mapped layer");
                 l.used = frame;
                 GroupShadow {
@@ -444,7 +447,7 @@ impl ShadowMaps {
                     axis: l.drawn_axis,
                 }
             }
-            None => GroupShadow {
+            _ => GroupShadow {
                 layer: NO_LAYER,
                 axis: g.axis,
             },
@@ -452,7 +455,7 @@ impl ShadowMaps {
         // Pass 2: new groups take a free layer, or one no group used this frame.
         let mut cursor = 0usize;
         for (g, s) in groups.iter().zip(out.iter_mut()) {
-            if s.layer != NO_LAYER {
+            if s.layer != NO_LAYER || !g.shadowed {
                 continue;
             }
             while cursor < self.layers.len() && self.layers[cursor].is_some_and(|l| l.used == frame)

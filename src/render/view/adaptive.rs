@@ -42,6 +42,25 @@ pub fn prefix_with_energy(all: &[Light], n: usize, out: &mut Vec<Light>) {
             crate::lights::angular_radius(nearest.luminance(), moment.length());
     }
     out.truncate(n);
+    keep_shadow_budget(all, out);
+}
+
+/// A shadow budget survives the cut: when the full set marks K lights `shadowed` and fewer of them
+/// are kept, the kept lights are marked again (`budget::mark`, the marks still present kept), so
+/// that a prefix still draws min(K, n) lights with shadow maps.
+fn keep_shadow_budget(all: &[Light], kept: &mut [Light]) {
+    let k = all.iter().filter(|l| l.shadowed == Some(true)).count();
+    if !all.iter().any(|l| l.shadowed.is_some()) {
+        return;
+    }
+    let still: Vec<u32> = kept
+        .iter()
+        .filter(|l| l.shadowed == Some(true))
+        .map(|l| l.id)
+        .collect();
+    if still.len() < k.min(kept.len()) {
+        crate::lights::budget::mark(kept, k, &still);
+    }
 }
 
 /// Chooses the light count from the frame times.
@@ -170,6 +189,28 @@ mod tests {
         assert_eq!(out[0].irradiance, [4.0; 3], "light 2 is nearest to light 0");
         let total: f32 = out.iter().map(|l| l.irradiance[0]).sum();
         assert_eq!(total, 6.0);
+    }
+
+    #[test]
+    fn a_prefix_keeps_as_many_shadowed_lights_as_the_set_marked() {
+        let mut all = [
+            light(0, [0.0, 1.0, 0.0], 1.0),
+            light(1, [1.0, 0.2, 0.0], 2.0),
+            light(2, [0.0, 1.0, 0.1], 9.0),
+            light(3, [-1.0, 0.2, 0.0], 0.5),
+        ];
+        crate::lights::budget::mark(&mut all, 1, &[]);
+        assert_eq!(all[2].shadowed, Some(true));
+        // Light 2 is cut; its energy goes to light 0, which now carries the mark.
+        let mut out = Vec::new();
+        prefix_with_energy(&all, 2, &mut out);
+        let marked: Vec<u32> = out
+            .iter()
+            .filter(|l| l.shadowed == Some(true))
+            .map(|l| l.id)
+            .collect();
+        assert_eq!(marked, [0]);
+        assert!(out.iter().all(|l| l.shadowed.is_some()));
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //!
 //! Input: the command line. Output: [`ViewArgs`], which every mode (headless, window, bench) reads.
 
-use super::source::DEFAULT_STREAM;
+use super::source::{DEFAULT_STREAM, LightFeed, Source};
 use crate::render::gpu::parse_backends;
 use crate::render::renderer::Options;
 use crate::render::scene::{Camera, Mesh, Scene};
@@ -62,6 +62,11 @@ pub struct ViewArgs {
     /// Adapt the light count (a prefix of the progressive set) to reach this frame rate.
     #[arg(long)]
     pub target_fps: Option<f32>,
+    /// Shadow budget: only K lights get shadow maps (the K most worth one, marked as the
+    /// daemon's `shadowed=K` marks them), the rest are drawn unoccluded. A stream is asked for
+    /// `shadowed=K` (unless its URL has it); a file's or a map's lights are marked here.
+    #[arg(long, value_name = "K")]
+    pub shadowed: Option<usize>,
     /// Side of each shadow map, texels (default: the largest power of two not above the frame's
     /// longer side, 256–2048: 256 at 320×240, 512 at 960×540).
     #[arg(long)]
@@ -135,6 +140,11 @@ impl ViewArgs {
         self.shadow_size
             .unwrap_or_else(|| shadow_size_for(size.0, size.1))
             .clamp(16, 8192)
+    }
+
+    /// Opens SOURCE with the shadow budget.
+    pub(super) fn feed(&self) -> anyhow::Result<LightFeed> {
+        LightFeed::open_with_budget(&Source::parse(&self.source), self.lights, self.shadowed)
     }
 
     /// The showcase scene around `--mesh` (or the built-in bunny).

@@ -7,7 +7,6 @@
 //! waits for the device, so a row is the latency of a frame, not the throughput of a queue.
 
 use super::args::{ViewArgs, camera_at};
-use super::source::{LightFeed, Source};
 use crate::lights::Light;
 use crate::render::gpu::Gpu;
 use crate::render::overlay::Status;
@@ -56,8 +55,7 @@ fn turned(lights: &[Light], deg: f32, out: &mut Vec<Light>) {
 /// `--bench`: the naive and the optimised path on the same scene and lights, same run.
 pub(super) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let size = args.size.unwrap_or((320, 240));
-    let source = Source::parse(&args.source);
-    let mut feed = LightFeed::open(&source, args.lights)?;
+    let mut feed = args.feed()?;
     let set = feed.wait_first(Duration::from_secs(10))?;
     let scene = args.scene()?;
     let gpu = Gpu::new(Gpu::backends(args.backend))?;

@@ -5,7 +5,6 @@
 
 use super::adaptive::LightState;
 use super::args::{ViewArgs, camera_at};
-use super::source::{LightFeed, Source};
 use crate::render::gpu::Gpu;
 use crate::render::overlay::Status;
 use crate::render::renderer::{OUTPUT_FORMAT, Renderer};
@@ -15,7 +14,7 @@ use std::time::{Duration, Instant};
 /// `--headless`: render `--frames` frames to PNGs.
 pub(super) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let size = args.size.unwrap_or((320, 240));
-    let mut feed = LightFeed::open(&Source::parse(&args.source), args.lights)?;
+    let mut feed = args.feed()?;
     let scene = args.scene()?;
     let gpu = Gpu::new(Gpu::backends(args.backend))?;
     eprintln!("vemlight view: {}", gpu.describe());

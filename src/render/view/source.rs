@@ -55,10 +55,15 @@ pub fn read_lightset(path: &std::path::Path) -> anyhow::Result<LightSet> {
 
 /// Extracts `lights` lights from a map file (the CLI's defaults otherwise).
 pub fn lights_from_map(path: &std::path::Path, lights: usize) -> anyhow::Result<LightSet> {
+    extract_from_map(path, lights, false)
+}
+
+/// [`lights_from_map`], with the map's L2 SH when `sh9` (for a shadow budget's remainder).
+fn extract_from_map(path: &std::path::Path, lights: usize, sh9: bool) -> anyhow::Result<LightSet> {
     let req = LightRequest {
         lights,
         estimate_error: false,
-        sh9: false,
+        sh9,
         ..LightRequest::default()
     };
     req.validate().map_err(anyhow::Error::msg)?;
@@ -68,6 +73,41 @@ pub fn lights_from_map(path: &std::path::Path, lights: usize) -> anyhow::Result<
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     Ok(lightset_for_map(&mut Extractor::new(), &map, &req, &name))
+}
+
+/// `url` asking the daemon for a shadow budget of `k` lights (docs/API.md, `GET /v1/stream`):
+/// `shadowed=k` appended to its query, unless the query already has a `shadowed` parameter (then
+/// the URL says what the user asked for and is left as it is).
+pub fn stream_url_with_shadowed(url: &str, k: usize) -> String {
+    let (rest, fragment) = match url.split_once('#') {
+        Some((r, f)) => (r, Some(f)),
+        None => (url, None),
+    };
+    let has = rest.split_once('?').is_some_and(|(_, q)| {
+        q.split('&')
+            .any(|p| p.split('=').next() == Some("shadowed"))
+    });
+    let mut out = rest.to_owned();
+    if !has {
+        out.push(if rest.contains('?') { '&' } else { '?' });
+        out.push_str(&format!("shadowed={k}"));
+    }
+    if let Some(f) = fragment {
+        out.push('#');
+        out.push_str(f);
+    }
+    out
+}
+
+/// Marks `k` of `set`'s lights as the daemon's `shadowed=K` does (`budget::mark`, the marks of
+/// `previous` kept where they still apply), and when the set has the map's SH, gives the remainder
+/// as `sh9_unshadowed` (`budget::remainder_sh`). Returns the ids marked.
+pub fn mark_shadow_budget(set: &mut LightSet, k: usize, previous: &[u32]) -> Vec<u32> {
+    let ids = crate::lights::budget::mark(&mut set.lights, k, previous);
+    if let Some(sh9) = &set.sh9 {
+        set.sh9_unshadowed = Some(crate::lights::budget::remainder_sh(sh9, &set.lights));
+    }
+    ids
 }
 
 /// Lights for the render loop.
@@ -80,10 +120,33 @@ pub enum LightFeed {
 impl LightFeed {
     /// Opens a source: reads the file or extracts the lights now; starts the stream's thread.
     pub fn open(source: &Source, lights: usize) -> anyhow::Result<LightFeed> {
+        Self::open_with_budget(source, lights, None)
+    }
+
+    /// [`open`](Self::open) with a shadow budget of `shadowed` lights (`vemlight view
+    /// --shadowed K`): a stream is asked for `shadowed=K` (the daemon marks the lights); a file's
+    /// or a map's lights are marked here, the same way. Without it, a file's own marks are kept.
+    pub fn open_with_budget(
+        source: &Source,
+        lights: usize,
+        shadowed: Option<usize>,
+    ) -> anyhow::Result<LightFeed> {
+        let marked = |mut set: LightSet| {
+            if let Some(k) = shadowed {
+                mark_shadow_budget(&mut set, k, &[]);
+            }
+            LightFeed::Static(Some(Box::new(set)))
+        };
         Ok(match source {
-            Source::LightSetFile(p) => LightFeed::Static(Some(Box::new(read_lightset(p)?))),
-            Source::Map(p) => LightFeed::Static(Some(Box::new(lights_from_map(p, lights)?))),
-            Source::Stream(url) => LightFeed::Stream(StreamClient::start(url)?),
+            Source::LightSetFile(p) => marked(read_lightset(p)?),
+            Source::Map(p) => marked(extract_from_map(p, lights, shadowed.is_some())?),
+            Source::Stream(url) => {
+                let url = match shadowed {
+                    Some(k) => stream_url_with_shadowed(url, k),
+                    None => url.clone(),
+                };
+                LightFeed::Stream(StreamClient::start_with_budget(&url, shadowed)?)
+            }
         })
     }
 
@@ -142,6 +205,13 @@ pub struct StreamClient {
 impl StreamClient {
     /// Starts the client thread (it connects, and reconnects, on its own).
     pub fn start(url: &str) -> anyhow::Result<StreamClient> {
+        Self::start_with_budget(url, None)
+    }
+
+    /// [`start`](Self::start) with a shadow budget of `shadowed` lights: a set that arrives
+    /// without marks (from a daemon that does not know `shadowed=K`) is marked on the client's
+    /// thread, with the ids it marked last time for hysteresis, as the daemon would.
+    pub fn start_with_budget(url: &str, shadowed: Option<usize>) -> anyhow::Result<StreamClient> {
         if url.starts_with("wss://") {
             bail!("wss:// is not supported (the client is built without TLS); use ws://");
         }
@@ -154,7 +224,7 @@ impl StreamClient {
             let (shared, stop, url) = (shared.clone(), stop.clone(), url.to_owned());
             std::thread::Builder::new()
                 .name("vemlight-stream".into())
-                .spawn(move || stream_loop(&url, &shared, &stop))?
+                .spawn(move || stream_loop(&url, shadowed, &shared, &stop))?
         };
         Ok(StreamClient {
             shared,
@@ -193,12 +263,13 @@ impl Drop for StreamClient {
 }
 
 /// Connect, read until the connection ends, back off, repeat — until `stop`.
-fn stream_loop(url: &str, shared: &Mutex<Shared>, stop: &AtomicBool) {
+fn stream_loop(url: &str, shadowed: Option<usize>, shared: &Mutex<Shared>, stop: &AtomicBool) {
     const FIRST_BACKOFF: Duration = Duration::from_millis(250);
     const MAX_BACKOFF: Duration = Duration::from_secs(5);
     let mut backoff = FIRST_BACKOFF;
+    let mut budget = shadowed.map(|k| (k, Vec::new()));
     while !stop.load(Ordering::Relaxed) {
-        let result = connect_and_read(url, shared, stop, &mut backoff);
+        let result = connect_and_read(url, &mut budget, shared, stop, &mut backoff);
         if let Ok(mut s) = shared.lock() {
             s.connected = false;
             if let Err(e) = result {
@@ -215,8 +286,10 @@ fn stream_loop(url: &str, shared: &Mutex<Shared>, stop: &AtomicBool) {
 }
 
 /// One connection's life. Resets `backoff` once connected.
+/// `budget`: the shadow budget K and the ids marked last, for sets that arrive without marks.
 fn connect_and_read(
     url: &str,
+    budget: &mut Option<(usize, Vec<u32>)>,
     shared: &Mutex<Shared>,
     stop: &AtomicBool,
     backoff: &mut Duration,
@@ -250,7 +323,12 @@ fn connect_and_read(
     while !stop.load(Ordering::Relaxed) {
         match ws.read() {
             Ok(tungstenite::Message::Text(text)) => match serde_json::from_str::<LightSet>(&text) {
-                Ok(set) => {
+                Ok(mut set) => {
+                    if let Some((k, marked)) = budget
+                        && set.lights.iter().all(|l| l.shadowed.is_none())
+                    {
+                        *marked = mark_shadow_budget(&mut set, *k, marked);
+                    }
                     if let Ok(mut s) = shared.lock() {
                         s.latest = Some(set); // latest state: an unread older set is replaced
                     }
@@ -278,6 +356,61 @@ fn connect_and_read(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_shadow_budget_is_asked_of_the_stream_unless_the_url_asks_already() {
+        let base = "ws://127.0.0.1:7878/v1/stream";
+        assert_eq!(
+            stream_url_with_shadowed(base, 4),
+            format!("{base}?shadowed=4")
+        );
+        assert_eq!(
+            stream_url_with_shadowed(&format!("{base}?lights=64"), 4),
+            format!("{base}?lights=64&shadowed=4")
+        );
+        let asked = format!("{base}?lights=64&shadowed=2");
+        assert_eq!(stream_url_with_shadowed(&asked, 4), asked);
+        // A parameter that merely ends in "shadowed" is not it.
+        assert_eq!(
+            stream_url_with_shadowed(&format!("{base}?unshadowed=1"), 4),
+            format!("{base}?unshadowed=1&shadowed=4")
+        );
+    }
+
+    #[test]
+    fn a_map_or_file_source_with_a_budget_marks_k_lights_and_without_keeps_its_marks() {
+        let count = |set: &LightSet| {
+            assert!(set.lights.iter().all(|l| l.shadowed.is_some()));
+            set.lights
+                .iter()
+                .filter(|l| l.shadowed == Some(true))
+                .count()
+        };
+        let map = Source::Map("tests/data/studio.exr".into());
+        let marked = LightFeed::open_with_budget(&map, 8, Some(2))
+            .unwrap()
+            .poll()
+            .unwrap();
+        assert_eq!(count(&marked), 2);
+        assert_eq!(marked.sh9_unshadowed.as_ref().map(Vec::len), Some(27));
+        // A file: its own marks are kept without --shadowed, and replaced with it.
+        let dir = std::env::temp_dir().join(format!("vemlight-budget-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("set.json");
+        std::fs::write(&path, serde_json::to_string(&marked).unwrap()).unwrap();
+        let file = Source::LightSetFile(path);
+        let kept = LightFeed::open(&file, 0).unwrap().poll().unwrap();
+        assert_eq!(count(&kept), 2);
+        let more = LightFeed::open_with_budget(&file, 0, Some(3))
+            .unwrap()
+            .poll()
+            .unwrap();
+        assert_eq!(count(&more), 3);
+        std::fs::remove_dir_all(&dir).unwrap();
+        // Without a budget a map's lights carry no marks (the viewer shadows them all).
+        let plain = LightFeed::open(&map, 8).unwrap().poll().unwrap();
+        assert!(plain.lights.iter().all(|l| l.shadowed.is_none()));
+    }
 
     #[test]
     fn sources_are_told_apart_by_scheme_and_extension() {

@@ -5,7 +5,7 @@
 
 use super::adaptive::LightState;
 use super::args::{ViewArgs, camera_at};
-use super::source::{LightFeed, Source};
+use super::source::LightFeed;
 use crate::render::gpu::Gpu;
 use crate::render::overlay::Status;
 use crate::render::renderer::{Options, Renderer};
@@ -48,7 +48,7 @@ const DEFAULT_SIZE: (u32, u32) = (960, 540);
 
 /// Opens the window and runs until it is closed.
 pub(super) fn run(args: ViewArgs) -> anyhow::Result<()> {
-    let feed = LightFeed::open(&Source::parse(&args.source), args.lights)?;
+    let feed = args.feed()?;
     let scene = args.scene()?;
     let event_loop = EventLoop::new()
         .map_err(|e| anyhow::anyhow!("cannot open a window ({e}); try --headless"))?;
