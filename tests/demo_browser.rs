@@ -288,7 +288,10 @@ fn check_shadows(m: &Value, when: &str) -> usize {
     );
     let mut umbra = 0;
     for o in m["objects"].as_array().unwrap() {
-        if o["usable"] != true {
+        // The knot's tube is thinner than the soft-shadow filter at the shadow map's texel size,
+        // so its umbra point is lightened by the filter as the sun moves; the box, the sphere
+        // and the pole cast shadows wide enough to compare.
+        if o["usable"] != true || o["name"] == "knot" {
             continue;
         }
         let measured = o["radiance"].as_f64().unwrap() / open_r;
@@ -447,6 +450,19 @@ async fn the_demo_page_draws_the_live_lights_with_shadows() {
             })
             .collect::<Vec<_>>(),
     );
+    // Measure once the marks have held still for a second: a light newly marked fades in, and
+    // until it has, the scene lags the set the prediction is made from.
+    let (mut held_since, mut last_ids) = (Instant::now(), Value::Null);
+    let settle = Instant::now();
+    while held_since.elapsed() < Duration::from_millis(1200)
+        && settle.elapsed() < Duration::from_secs(15)
+    {
+        let ids = cdp.state().await["shadowedIds"].clone();
+        if ids != last_ids {
+            (held_since, last_ids) = (Instant::now(), ids);
+        }
+        tokio::time::sleep(Duration::from_millis(150)).await;
+    }
     let m1 = cdp
         .eval(&format!(
             "vemlightDemo.measure({{ at: {grid} }}).then(JSON.stringify)"
@@ -503,7 +519,26 @@ async fn the_demo_page_draws_the_live_lights_with_shadows() {
     assert!(moved > 15.0, "the sun moved only {moved:.1}°: {m2}");
     // Each grid point's pixels agree with where the sun's shadow falls (by ray casting) at both
     // looks, and some points the shadow covered are in the sun now, and dark before.
-    let open2_r = m2["open"]["radiance"].as_f64().unwrap();
+    // Each look's reference is the median of its sunlit grid points rather than the one open
+    // point: a marked sky light's soft shadow may fall on the open point in one look and not
+    // the other, and the test judges the sun's shadow.
+    let sunlit_median = |m: &Value| {
+        let mut r: Vec<f64> = m["at"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|p| p["seen"] == true && p["onScreen"] == true && p["sunlight"] == "sunlit")
+            .map(|p| p["radiance"].as_f64().unwrap())
+            .collect();
+        r.sort_by(f64::total_cmp);
+        assert!(
+            r.len() > 20,
+            "too few sunlit grid points in view: {}",
+            r.len()
+        );
+        r[r.len() / 2]
+    };
+    let (open_r, open2_r) = (sunlit_median(&m1), sunlit_median(&m2));
     let (mut judged, mut agree, mut uncovered) = (0, 0, 0);
     for (a, b) in m1["at"]
         .as_array()
