@@ -66,7 +66,8 @@ impl Default for PipelineConfig {
     }
 }
 
-/// A captured frame waiting for processing, already resampled into the domain square.
+/// A captured frame, already resampled into the domain square: waiting for processing, then kept
+/// as the last frame to serve light counts asked for after it.
 struct Frame {
     map: EnvMap,
     image: DomainImage,
@@ -259,7 +260,7 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
     // One camera's frames: each frame's lights start from the last frame's.
     p.extractor.set_video(cfg.video);
     // The newest processed frame, kept to serve light counts asked for after it.
-    let mut last: Option<LastFrame> = None;
+    let mut last: Option<Frame> = None;
     loop {
         let frame = {
             let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
@@ -281,51 +282,25 @@ fn process_loop(hub: &Hub, mailbox: &Mailbox, cfg: &PipelineConfig, fps: f64, so
             }
         };
         let Some(frame) = frame else {
-            // No new frame for a while: serve the counts nobody has a set for from the last one.
+            // No new frame for a while: serve the counts nobody has a set for from the last one
+            // (its resampling is not part of these sets' latency).
             let keys = hub.unserved_keys();
             if let Some(l) = &last {
                 p.publish(hub, cfg, source, l, Duration::ZERO, &keys);
             }
             continue;
         };
-        let Frame {
-            map,
-            image,
-            domain,
-            resample_tail,
-            index,
-            t_capture_ns,
-            captured_at,
-        } = frame;
         let keys = hub.keys();
         // Forget the state (filter, count, marks) of streams nobody asks for any more.
         p.streams.retain(|k, _| keys.contains(k));
-        let this = LastFrame {
-            map,
-            image,
-            domain,
-            index,
-            t_capture_ns,
-            captured_at,
-        };
-        p.publish(hub, cfg, source, &this, resample_tail, &keys);
+        p.publish(hub, cfg, source, &frame, frame.resample_tail, &keys);
         Metrics::inc(&hub.metrics.frames_processed);
         let mut s = mailbox.slot.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(older) = last.replace(this) {
+        if let Some(older) = last.replace(frame) {
             s.spare.push(older.map);
             s.spare_images.push(older.image);
         }
     }
-}
-
-/// A processed frame, kept to serve light counts asked for after it.
-struct LastFrame {
-    map: EnvMap,
-    image: DomainImage,
-    domain: Domain,
-    index: u64,
-    t_capture_ns: u64,
-    captured_at: Instant,
 }
 
 /// The processing thread's state across frames: extraction caches and each stream's state.
@@ -355,7 +330,7 @@ impl Processor {
         hub: &Hub,
         cfg: &PipelineConfig,
         source: &str,
-        frame: &LastFrame,
+        frame: &Frame,
         resample_tail: Duration,
         keys: &[StreamKey],
     ) {
