@@ -4,6 +4,7 @@
 //! HTTP endpoint returns, the WebSocket stream sends and the CLI prints (DESIGN.md "wire format").
 
 use crate::envmap::{EnvMap, Projection};
+use crate::lights::budget::count_ladder;
 use crate::lights::error::IrradianceReference;
 use crate::lights::{
     Extractor, FrameRequest, Light, Method, PrimaryLight, primary_light, total_irradiance,
@@ -252,17 +253,17 @@ pub fn lightset_for_map(
     let reference = needs_reference.then(|| IrradianceReference::from_domain_image(&image));
     let ((ex, sh9), error, met) = match (req.max_error, &reference) {
         (Some(target), Some(reference)) => {
-            // Powers of two up to the cap, then the cap itself.
-            let mut n = 1;
-            loop {
-                let n_now = n.min(req.lights);
-                let (ex, sh9) = extract(n_now, req.sh9);
+            // The fewest of the ladder that meet the target; the cap when none does.
+            let mut found = None;
+            for n in count_ladder(req.lights) {
+                let (ex, sh9) = extract(n, req.sh9);
                 let err = reference.error(&ex.lights).rel_rms;
-                if err <= target || n_now == req.lights {
-                    break ((ex, sh9), Some(err), Some(err <= target));
+                if err <= target || n == req.lights {
+                    found = Some(((ex, sh9), Some(err), Some(err <= target)));
+                    break;
                 }
-                n *= 2;
             }
+            found.expect("the ladder ends at the cap")
         }
         _ => {
             let (ex, sh9) = extract(req.lights, req.sh9);

@@ -21,8 +21,7 @@ pub const STEP_DOWN_FRAMES: u32 = 30;
 
 /// The light count of a stream with an error target: the fewest lights, at most `max`, whose
 /// estimated diffuse error (ALGORITHMS.md §8) meets the target, held with hysteresis from frame
-/// to frame. The counts it moves between are the powers of two below `max`, then `max` (as
-/// `vemlight lights --max-error` searches).
+/// to frame. The counts it moves between are those of [`count_ladder`].
 #[derive(Clone, Debug)]
 pub struct AdaptiveCount {
     max: usize,
@@ -97,11 +96,7 @@ impl AdaptiveCount {
     }
 
     fn ladder(&self) -> Vec<usize> {
-        let mut out: Vec<usize> = std::iter::successors(Some(1usize), |n| Some(n * 2))
-            .take_while(|&n| n < self.max)
-            .collect();
-        out.push(self.max);
-        out
+        count_ladder(self.max)
     }
 
     fn position(&self) -> usize {
@@ -110,6 +105,17 @@ impl AdaptiveCount {
             .position(|&n| n == self.count)
             .unwrap_or(0)
     }
+}
+
+/// The light counts an error target chooses among, at most `max`: the powers of two below it,
+/// then `max` (`vemlight lights --max-error`, `POST /v1/lights?max_error`, and a stream's
+/// [`AdaptiveCount`]).
+pub fn count_ladder(max: usize) -> Vec<usize> {
+    let mut out: Vec<usize> = std::iter::successors(Some(1usize), |n| Some(n * 2))
+        .take_while(|&n| n < max)
+        .collect();
+    out.push(max);
+    out
 }
 
 /// An unmarked light takes a marked one's place only when it is worth this much more.
