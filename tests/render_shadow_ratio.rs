@@ -10,7 +10,7 @@ use vemlight::lights::Light;
 use vemlight::render::gpu::Gpu;
 use vemlight::render::overlay::Status;
 use vemlight::render::scene::{Camera, Material, Scene};
-use vemlight::render::{OUTPUT_FORMAT, Options, Renderer};
+use vemlight::render::{FrameStats, OUTPUT_FORMAT, Options, Renderer};
 
 const SIZE: (u32, u32) = (320, 240);
 const ALBEDO: f32 = 0.5;
@@ -52,8 +52,9 @@ fn light(id: u32, to_light: Vec3, e: f32) -> Light {
     }
 }
 
-/// Renders the lights and returns the HDR radiance (red channel) and the pixel of each world point.
-fn render(lights: &[Light], points: &[Vec3]) -> (Vec<[f32; 4]>, Vec<(usize, usize)>) {
+/// Renders the lights and returns the HDR radiance (red channel), the pixel of each world point
+/// and the frame's stats.
+fn render(lights: &[Light], points: &[Vec3]) -> (Vec<[f32; 4]>, Vec<(usize, usize)>, FrameStats) {
     let gpu = Gpu::new(Gpu::backends(None)).expect("a graphics adapter (CI installs lavapipe)");
     let options = Options {
         exposure: Some(1.0),
@@ -63,7 +64,7 @@ fn render(lights: &[Light], points: &[Vec3]) -> (Vec<[f32; 4]>, Vec<(usize, usiz
     };
     let mut r = Renderer::new(&gpu, &scene(), SIZE, OUTPUT_FORMAT, options);
     r.set_lights(lights);
-    r.render_headless(&camera(), &Status::default());
+    let stats = r.render_headless(&camera(), &Status::default());
     let view_proj = camera().view_proj(SIZE.0 as f32 / SIZE.1 as f32);
     let pixels = points
         .iter()
@@ -74,13 +75,13 @@ fn render(lights: &[Light], points: &[Vec3]) -> (Vec<[f32; 4]>, Vec<(usize, usiz
             (x, y)
         })
         .collect();
-    (r.read_hdr(), pixels)
+    (r.read_hdr(), pixels, stats)
 }
 
 /// The radiance at the pixels of world points, with no check of the neighbourhood (for points
 /// inside a penumbra).
 fn raw_radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
-    let (hdr, pixels) = render(lights, points);
+    let (hdr, pixels, _) = render(lights, points);
     pixels
         .iter()
         .map(|&(x, y)| hdr[y * SIZE.0 as usize + x][0])
@@ -89,8 +90,13 @@ fn raw_radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
 
 /// Renders and returns the HDR radiance (red channel) at the pixels of world points.
 fn radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
-    let (hdr, pixels) = render(lights, points);
-    pixels
+    radiance_and_stats(lights, points).0
+}
+
+/// [`radiance_at`] and the frame's stats.
+fn radiance_and_stats(lights: &[Light], points: &[Vec3]) -> (Vec<f32>, FrameStats) {
+    let (hdr, pixels, stats) = render(lights, points);
+    let values = pixels
         .iter()
         .zip(points)
         .map(|(&(x, y), p)| {
@@ -106,7 +112,8 @@ fn radiance_at(lights: &[Light], points: &[Vec3]) -> Vec<f32> {
             }
             c
         })
-        .collect()
+        .collect();
+    (values, stats)
 }
 
 fn close(a: f32, b: f32) -> bool {
@@ -198,4 +205,69 @@ fn a_light_with_an_angular_radius_casts_a_penumbra() {
         "inside the penumbra, outside the slab: {}",
         soft[2]
     );
+}
+
+/// The shadow budget (`vemlight view --shadowed K`, docs/RENDER.md): of two lights, one marked
+/// `shadowed` and one not, only the marked one gets a shadow map, so the ground in its shadow
+/// loses exactly its share of the diffuse sum, while the unmarked light is drawn unoccluded
+/// (V = 1) and the ground where its shadow would fall is as bright as the open ground.
+#[test]
+fn only_the_marked_light_casts_a_shadow() {
+    // Light 0 straight above (E1), light 1 at 60° from the zenith toward +X (E2, n·l = 0.5); the
+    // slab's shadow from light 0 covers the origin, from light 1 the ground 1.73–2.08 toward −X.
+    let (e1, e2) = (3.0, 2.0);
+    let l2 = Vec3::new(60f32.to_radians().sin(), 60f32.to_radians().cos(), 0.0);
+    let under = Vec3::new(0.0, 0.0, 0.0); // behind the slab for light 0
+    let beside = Vec3::new(-1.9, 0.0, 0.0); // behind the slab for light 1
+    let open = Vec3::new(1.5, 0.0, 1.5); // neither
+    let points = [under, beside, open];
+    let k = ALBEDO / PI;
+    let expect_open = k * (e1 + 0.5 * e2);
+
+    // The budget: light 0 shadowed, light 1 not.
+    let budget = [
+        Light {
+            shadowed: Some(true),
+            ..light(0, Vec3::Y, e1)
+        },
+        Light {
+            shadowed: Some(false),
+            ..light(1, l2, e2)
+        },
+    ];
+    let (l, stats) = radiance_and_stats(&budget, &points);
+    println!(
+        "budget: under {} beside {} open {} (open expected {expect_open}); {stats:?}",
+        l[0], l[1], l[2]
+    );
+    assert!(close(l[2], expect_open), "open {} vs {expect_open}", l[2]);
+    // Behind the slab for the shadowed light: darker by its share, E1 / (E1 + E2/2) = 0.75.
+    assert!(
+        close(l[0] / l[2], 0.25),
+        "under/open = {} (light 0's share is 0.75)",
+        l[0] / l[2]
+    );
+    // Where the unshadowed light's shadow would fall: not darker at all.
+    assert!(
+        close(l[1] / l[2], 1.0),
+        "beside/open = {}: the unmarked light must not be shadowed",
+        l[1] / l[2]
+    );
+    assert_eq!(stats.lights, 2);
+    assert_eq!(stats.groups, 1, "one shadow map in use: the marked light's");
+
+    // The same lights without marks: both shadowed, as before the budget (beside/open = 0.75).
+    let plain = budget.map(|l| Light {
+        shadowed: None,
+        ..l
+    });
+    let (p, stats) = radiance_and_stats(&plain, &points);
+    println!(
+        "no marks: under {} beside {} open {}; {stats:?}",
+        p[0], p[1], p[2]
+    );
+    assert!(close(p[2], expect_open), "open {} vs {expect_open}", p[2]);
+    assert!(close(p[0] / p[2], 0.25), "under/open = {}", p[0] / p[2]);
+    assert!(close(p[1] / p[2], 0.75), "beside/open = {}", p[1] / p[2]);
+    assert_eq!(stats.groups, 2);
 }
