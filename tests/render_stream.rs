@@ -24,27 +24,36 @@ fn a_lightset(seq: u64) -> String {
     serde_json::to_string(&set).unwrap()
 }
 
-#[test]
+/// What a connecting client asked of the fake daemon: the request's path and query, and the
+/// subprotocol it named.
+struct Asked {
+    uri: String,
+    protocol: Option<String>,
+}
+
+/// A fake daemon on loopback that answers one connection per message: the handshake (with the
+/// `vemlight.v1` subprotocol), that one set, then it hangs up. Returns its port and what each
+/// connection asked.
 // tungstenite's handshake callback returns its (large) HTTP error response by value.
 #[allow(clippy::result_large_err)]
-fn the_stream_client_reconnects_and_keeps_the_latest_set() {
+fn fake_daemon(messages: Vec<String>) -> (u16, std::thread::JoinHandle<Vec<Asked>>) {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let port = listener.local_addr().unwrap().port();
-    let messages = [a_lightset(1), a_lightset(2)];
     let server = std::thread::spawn(move || {
-        let mut protocols = Vec::new();
-        // Two connections: each gets one set, then the server hangs up.
+        let mut asked = Vec::new();
         for msg in messages {
             let (tcp, _) = listener.accept().unwrap();
             let mut ws = tungstenite::accept_hdr(
                 tcp,
                 |req: &tungstenite::handshake::server::Request,
                  mut resp: tungstenite::handshake::server::Response| {
-                    let asked = req
-                        .headers()
-                        .get("Sec-WebSocket-Protocol")
-                        .map(|v| v.to_str().unwrap().to_owned());
-                    protocols.push(asked);
+                    asked.push(Asked {
+                        uri: req.uri().to_string(),
+                        protocol: req
+                            .headers()
+                            .get("Sec-WebSocket-Protocol")
+                            .map(|v| v.to_str().unwrap().to_owned()),
+                    });
                     resp.headers_mut()
                         .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
                     Ok(resp)
@@ -57,8 +66,15 @@ fn the_stream_client_reconnects_and_keeps_the_latest_set() {
             let deadline = Instant::now() + Duration::from_secs(2);
             while Instant::now() < deadline && ws.read().is_ok() {}
         }
-        protocols
+        asked
     });
+    (port, server)
+}
+
+#[test]
+fn the_stream_client_reconnects_and_keeps_the_latest_set() {
+    // Two connections: each gets one set, then the server hangs up.
+    let (port, server) = fake_daemon(vec![a_lightset(1), a_lightset(2)]);
     let url = format!("ws://127.0.0.1:{port}/v1/stream?lights=4");
     let mut feed = LightFeed::open(&Source::parse(&url), 4).unwrap();
     let first = feed.wait_first(Duration::from_secs(10)).unwrap();
@@ -67,7 +83,12 @@ fn the_stream_client_reconnects_and_keeps_the_latest_set() {
     let second = feed.wait_first(Duration::from_secs(10)).unwrap();
     assert_eq!(second.seq, 2);
     assert_eq!(second.lights.len(), 4);
-    let protocols = server.join().unwrap();
+    let protocols: Vec<Option<String>> = server
+        .join()
+        .unwrap()
+        .into_iter()
+        .map(|a| a.protocol)
+        .collect();
     assert_eq!(protocols, vec![Some(SUBPROTOCOL.to_owned()); 2]);
     let LightFeed::Stream(client) = &feed else {
         unreachable!()
@@ -80,38 +101,13 @@ fn the_stream_client_reconnects_and_keeps_the_latest_set() {
 /// comes with marks is drawn as marked, and one without (a daemon that ignores the parameter) is
 /// marked by the client, K lights.
 #[test]
-#[allow(clippy::result_large_err)]
 fn a_shadow_budget_is_asked_of_the_stream_and_kept_by_the_client() {
-    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
-    let port = listener.local_addr().unwrap().port();
     let unmarked = a_lightset(1);
     let mut marked: LightSet = serde_json::from_str(&a_lightset(2)).unwrap();
     for (i, l) in marked.lights.iter_mut().enumerate() {
         l.shadowed = Some(i == 3); // the daemon's choice, whatever it is, is kept
     }
-    let messages = [unmarked, serde_json::to_string(&marked).unwrap()];
-    let server = std::thread::spawn(move || {
-        let mut uris = Vec::new();
-        for msg in messages {
-            let (tcp, _) = listener.accept().unwrap();
-            let mut ws = tungstenite::accept_hdr(
-                tcp,
-                |req: &tungstenite::handshake::server::Request,
-                 mut resp: tungstenite::handshake::server::Response| {
-                    uris.push(req.uri().to_string());
-                    resp.headers_mut()
-                        .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
-                    Ok(resp)
-                },
-            )
-            .unwrap();
-            ws.send(tungstenite::Message::text(msg)).unwrap();
-            ws.close(None).unwrap();
-            let deadline = Instant::now() + Duration::from_secs(2);
-            while Instant::now() < deadline && ws.read().is_ok() {}
-        }
-        uris
-    });
+    let (port, server) = fake_daemon(vec![unmarked, serde_json::to_string(&marked).unwrap()]);
     let url = format!("ws://127.0.0.1:{port}/v1/stream?lights=4");
     let mut feed = LightFeed::open_with_budget(&Source::parse(&url), 4, Some(2)).unwrap();
     let shadowed = |set: &LightSet| -> Vec<u32> {
@@ -135,7 +131,7 @@ fn a_shadow_budget_is_asked_of_the_stream_and_kept_by_the_client() {
         [marked.lights[3].id],
         "the daemon's marks"
     );
-    let uris = server.join().unwrap();
+    let uris: Vec<String> = server.join().unwrap().into_iter().map(|a| a.uri).collect();
     assert_eq!(uris, vec!["/v1/stream?lights=4&shadowed=2".to_owned(); 2]);
     drop(feed);
 }
