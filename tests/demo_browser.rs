@@ -13,11 +13,14 @@
 mod common;
 
 use futures_util::{SinkExt, StreamExt};
+use glam::DVec3;
 use serde_json::{Value, json};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 use tokio_tungstenite::tungstenite::Message;
+use vemlight::envmap::luminance64;
+use vemlight::lights::sh;
 
 /// Kills the process when dropped (the daemon, the browser).
 struct Killed(Child);
@@ -162,8 +165,7 @@ impl Cdp {
 }
 
 fn luminance(rgb: &Value) -> f64 {
-    let c = |i: usize| rgb[i].as_f64().unwrap();
-    0.2126 * c(0) + 0.7152 * c(1) + 0.0722 * c(2)
+    luminance64(vec3(rgb))
 }
 
 /// DESIGN.md's diffuse formula on flat ground (n = +Y): Σ lum(E_k)·max(0, y_k)·V_k, with V_k the
@@ -190,29 +192,13 @@ fn angle_deg(a: &Value, b: &Value) -> f64 {
     d.clamp(-1.0, 1.0).acos().to_degrees()
 }
 
-/// The real L2 SH basis at unit vector d, the wire's order (proto/lightset.schema.json `sh9`).
-fn sh_basis(d: [f64; 3]) -> [f64; 9] {
-    let [x, y, z] = d;
-    [
-        0.282095,
-        0.488603 * y,
-        0.488603 * z,
-        0.488603 * x,
-        1.092548 * x * y,
-        1.092548 * y * z,
-        0.315392 * (3.0 * z * z - 1.0),
-        1.092548 * x * z,
-        0.546274 * (x * x - y * y),
-    ]
-}
-
 fn vec3(v: &Value) -> [f64; 3] {
     [0, 1, 2].map(|i| v[i].as_f64().unwrap())
 }
 
 /// What the client draws on flat ground: the shadowed lights (occluded as the page measured)
 /// plus the irradiance at n = +Y of the remainder's L2 SH (ALGORITHMS.md §7: E = Σ A_l L_lm Y_lm,
-/// A = π, 2π/3, π/4), the remainder being `sh9_unshadowed`, or `sh9` less the shadowed lights'
+/// A = π, 2π/3, π/4: `lights::sh::irradiance`), the remainder being `sh9_unshadowed`, or `sh9` less the shadowed lights'
 /// projections E·Y(l).
 fn ground_irradiance_model(m: &Value, visibility: &Value) -> f64 {
     let set = &m["set"];
@@ -233,7 +219,7 @@ fn ground_irradiance_model(m: &Value, visibility: &Value) -> f64 {
                 .collect();
             for l in set["lights"].as_array().unwrap() {
                 if shadowed.contains(&l["id"].as_u64().unwrap()) {
-                    let y = sh_basis(vec3(&l["to_light"]));
+                    let y = sh::basis(DVec3::from_array(vec3(&l["to_light"])));
                     for (i, yi) in y.iter().enumerate() {
                         for c in 0..3 {
                             sh[3 * i + c] -= l["irradiance"][c].as_f64().unwrap() * yi;
@@ -244,21 +230,8 @@ fn ground_irradiance_model(m: &Value, visibility: &Value) -> f64 {
             sh
         }
     };
-    let y_up = sh_basis([0.0, 1.0, 0.0]);
-    let a = [
-        std::f64::consts::PI,
-        2.0 * std::f64::consts::PI / 3.0,
-        2.0 * std::f64::consts::PI / 3.0,
-        2.0 * std::f64::consts::PI / 3.0,
-        std::f64::consts::PI / 4.0,
-        std::f64::consts::PI / 4.0,
-        std::f64::consts::PI / 4.0,
-        std::f64::consts::PI / 4.0,
-        std::f64::consts::PI / 4.0,
-    ];
-    let probe: Vec<f64> = (0..3)
-        .map(|c| (0..9).map(|i| a[i] * remainder[3 * i + c] * y_up[i]).sum())
-        .collect();
+    let remainder: [f64; 27] = remainder.try_into().expect("27 coefficients");
+    let probe = sh::irradiance(&remainder, DVec3::Y);
     let shadowed_part: f64 = set["lights"]
         .as_array()
         .unwrap()
@@ -271,7 +244,7 @@ fn ground_irradiance_model(m: &Value, visibility: &Value) -> f64 {
             luminance(&l["irradiance"]) * l["to_light"][1].as_f64().unwrap().max(0.0) * v
         })
         .sum();
-    shadowed_part + luminance(&Value::from(probe))
+    shadowed_part + luminance64(probe)
 }
 
 /// Checks each object's shadow on the ground in measurement `m` against open ground, the
