@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The project's one test command (README.md, .ci/run): installs what the tests need when it is
-# missing — Mesa's software Vulkan driver, for the headless rendering tests, and Chromium, for the
-# live view's browser test — then builds and runs every test once, in release mode (the
+# missing — Mesa's software Vulkan driver, for the headless rendering tests, Chromium, for the
+# live view's browser test, and nats-server, the broker of the publishing tests — then builds and runs every test once, in release mode (the
 # extraction tests crunch real HDR maps). Arguments go to `cargo test` (a filter, say).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -18,6 +18,10 @@ have_chromium() {
 missing=()
 have_lavapipe || missing+=(mesa-vulkan-drivers libvulkan1)
 have_chromium || missing+=(chromium)
+have_nats() {
+  command -v nats-server >/dev/null 2>&1 || [ -x /usr/sbin/nats-server ]
+}
+have_nats || missing+=(nats-server)
 if [ ${#missing[@]} -gt 0 ]; then
   SUDO=""
   [ "$(id -u)" = 0 ] || SUDO="sudo"
@@ -27,6 +31,8 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 # The live view's browser test runs, not skips (tests/viewer_browser.rs).
 export VEMLIGHT_REQUIRE_BROWSER=1
+# And the broker tests run, not skip (tests/common/broker.rs).
+export VEMLIGHT_REQUIRE_BROKER=1
 
 # Mesa warns without a runtime dir; a private one is enough.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"

@@ -5,7 +5,8 @@
 //! projections), [`sky`] (the synthetic sky model), [`capture`] (frame sources), [`sampling`]
 //! (resampling into the domain square, the warp, the progressive points), [`lights`] (light
 //! power and direction), [`temporal`] (filtering over frames), [`lightset`] (the wire document),
-//! [`daemon`] (the pipeline threads and the hub), [`server`] (HTTP and WebSocket); [`eval`]
+//! [`daemon`] (the pipeline threads and the hub), [`publish`] (the sets through a NATS
+//! broker), [`server`] (HTTP and WebSocket); [`eval`]
 //! measures; [`render`] (feature `render`) is the wgpu client; [`cli`] is the command line.
 
 // Loops over RGB channels and SIMD lanes read more clearly with an index.
@@ -20,6 +21,7 @@ pub mod lights;
 pub mod lightset;
 pub mod mapping;
 pub mod metrics;
+pub mod publish;
 #[cfg(feature = "render")]
 pub mod render;
 pub mod sampling;

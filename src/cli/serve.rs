@@ -85,6 +85,126 @@ pub struct ServeArgs {
     /// Period of the synthetic lamp that switches on and off, seconds (0: no lamp).
     #[arg(long, default_value_t = 10.0)]
     pub switch_period: f64,
+    #[command(flatten)]
+    pub publish: PublishArgs,
+}
+
+/// Publishing through a NATS broker (docs/API.md, "Through a NATS broker").
+#[derive(clap::Args)]
+pub struct PublishArgs {
+    /// Also publish every LightSet to this NATS broker (nats://HOST:PORT), for many viewers and
+    /// many cameras. Credentials never go here: VEMLIGHT_NATS_TOKEN, VEMLIGHT_NATS_USER and
+    /// VEMLIGHT_NATS_PASSWORD, --nats-token-file or --nats-creds (or the whole URL in
+    /// VEMLIGHT_NATS).
+    #[arg(
+        long,
+        env = "VEMLIGHT_NATS",
+        hide_env_values = true,
+        value_name = "URL"
+    )]
+    pub publish: Option<String>,
+    /// This camera's name on the broker, a subject token (default: the host name, sanitised).
+    #[arg(long, env = "VEMLIGHT_CAMERA")]
+    pub camera: Option<String>,
+    /// Light counts published to the broker, each on vemlight.v1.<camera>.lights.<n> (default:
+    /// --lights).
+    #[arg(long, value_delimiter = ',', value_name = "N,N,…")]
+    pub publish_lights: Vec<usize>,
+    /// A NATS credentials file (.creds: user JWT and NKey seed).
+    #[arg(long, env = "VEMLIGHT_NATS_CREDS", value_name = "FILE")]
+    pub nats_creds: Option<std::path::PathBuf>,
+    /// A file holding the broker's token.
+    #[arg(long, env = "VEMLIGHT_NATS_TOKEN_FILE", value_name = "FILE")]
+    pub nats_token_file: Option<std::path::PathBuf>,
+}
+
+/// Most light counts published to a broker: each takes one of the hub's
+/// [`MAX_LIGHT_COUNTS`](crate::daemon::MAX_LIGHT_COUNTS) streams, and clients need the rest.
+pub const MAX_PUBLISHED_COUNTS: usize = 8;
+
+impl PublishArgs {
+    /// The publisher's configuration, when --publish is given; credentials from the environment
+    /// or files.
+    fn config(
+        &self,
+        default_lights: usize,
+    ) -> anyhow::Result<Option<crate::publish::PublishConfig>> {
+        use crate::publish::{NatsAuth, PublishConfig, check_url, subjects};
+        let Some(url) = self.publish.clone() else {
+            return Ok(None);
+        };
+        let from_env = std::env::var("VEMLIGHT_NATS").is_ok_and(|v| v == url);
+        check_url(&url, from_env).map_err(anyhow::Error::msg)?;
+        let camera = match &self.camera {
+            Some(c) => {
+                subjects::check_camera(c).map_err(|e| anyhow::anyhow!("--camera: {e}"))?;
+                c.clone()
+            }
+            None => subjects::default_camera(),
+        };
+        let mut counts = if self.publish_lights.is_empty() {
+            vec![default_lights]
+        } else {
+            self.publish_lights.clone()
+        };
+        counts.sort_unstable();
+        counts.dedup();
+        if let Some(&n) = counts
+            .iter()
+            .find(|&&n| !(1..=crate::sampling::N_MAX).contains(&n))
+        {
+            bail!(
+                "--publish-lights: {n} is not a light count between 1 and {}",
+                crate::sampling::N_MAX
+            );
+        }
+        if counts.len() > MAX_PUBLISHED_COUNTS {
+            bail!(
+                "--publish-lights names {} counts; at most {MAX_PUBLISHED_COUNTS} (each costs an assignment pass a frame)",
+                counts.len()
+            );
+        }
+        let env = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
+        let token_file = match &self.nats_token_file {
+            Some(path) => Some(
+                std::fs::read_to_string(path)
+                    .with_context(|| format!("--nats-token-file '{}'", path.display()))?
+                    .trim()
+                    .to_string(),
+            ),
+            None => None,
+        };
+        let auth = match (
+            &self.nats_creds,
+            token_file.or_else(|| env("VEMLIGHT_NATS_TOKEN")),
+            env("VEMLIGHT_NATS_USER"),
+        ) {
+            (Some(path), None, None) => NatsAuth::CredsFile(path.clone()),
+            (None, Some(token), None) => {
+                if token.is_empty() {
+                    bail!("the NATS token file is empty");
+                }
+                NatsAuth::Token(token)
+            }
+            (None, None, Some(user)) => {
+                let Some(password) = env("VEMLIGHT_NATS_PASSWORD") else {
+                    bail!("VEMLIGHT_NATS_USER is set without VEMLIGHT_NATS_PASSWORD");
+                };
+                NatsAuth::UserPassword(user, password)
+            }
+            (None, None, None) => NatsAuth::None,
+            _ => bail!(
+                "give one way to log in to the broker: --nats-creds, a token (--nats-token-file or                  VEMLIGHT_NATS_TOKEN), or VEMLIGHT_NATS_USER and VEMLIGHT_NATS_PASSWORD"
+            ),
+        };
+        Ok(Some(PublishConfig {
+            url,
+            camera,
+            counts,
+            auth,
+            http: None,
+        }))
+    }
 }
 
 pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
@@ -151,6 +271,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     })?;
 
     let cors = CorsOrigins::parse(&args.cors_origins).map_err(anyhow::Error::msg)?;
+    let publish = args.publish.config(args.lights)?;
 
     let hub = Hub::new(args.lights, daemon::MAX_LIGHT_COUNTS, &source.describe());
     let cfg = PipelineConfig {
@@ -176,8 +297,18 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         let listener = tokio::net::TcpListener::bind(addr)
             .await
             .with_context(|| format!("cannot listen on {addr}"))?;
-        daemon::spawn(source, hub.clone(), cfg)?;
         let addr = listener.local_addr()?;
+        let state = match publish {
+            Some(p) => {
+                let p = crate::publish::PublishConfig {
+                    http: Some(format!("http://{addr}")),
+                    ..p
+                };
+                state.with_broker(crate::publish::start(p, hub.clone()).await?)
+            }
+            None => state,
+        };
+        daemon::spawn(source, hub.clone(), cfg)?;
         tracing::info!(
             "vemlight serving on http://{addr} (stream: ws://{addr}/v1/stream){}",
             if state.token.is_some() {

@@ -47,6 +47,9 @@ pub(super) async fn healthz(State(state): State<AppState>) -> Response {
         "latest_age_s": latest.as_ref().map(|p| p.captured_at.elapsed().as_secs_f64()),
         "source": source,
         "uptime_s": state.started.elapsed().as_secs_f64(),
+        // The broker link's state does not change the status: the daemon's own clients are
+        // served either way.
+        "broker": state.broker.as_ref().map(|b| b.health()),
     });
     let code = if latest.is_some() {
         StatusCode::OK
@@ -68,6 +71,9 @@ pub(super) async fn metrics(State(state): State<AppState>) -> Response {
          # TYPE vemlight_source_up gauge\nvemlight_source_up {}",
         u8::from(source.delivering())
     );
+    if let Some(b) = &state.broker {
+        b.render_metrics(&mut text);
+    }
     if let Some(p) = state.hub.latest() {
         let _ = writeln!(
             text,

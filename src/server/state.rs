@@ -31,6 +31,9 @@ pub struct AppState {
     /// The WebSocket client loops, which shutdown waits for (an upgraded connection is no
     /// longer hyper's, so the accept loop's connection set does not hold it).
     pub ws_clients: TaskTracker,
+    /// The NATS broker link, when the daemon publishes through one (reported, never a reason
+    /// to be unhealthy).
+    pub broker: Option<Arc<crate::publish::Link>>,
     pub(super) started: Instant,
 }
 
@@ -121,8 +124,15 @@ impl AppState {
             cors: CorsOrigins::None,
             header_read_timeout: HEADER_READ_TIMEOUT,
             ws_clients: TaskTracker::new(),
+            broker: None,
             started: Instant::now(),
         }
+    }
+
+    /// Reports `link` in `/healthz` and `/metrics`.
+    pub fn with_broker(mut self, link: Arc<crate::publish::Link>) -> Self {
+        self.broker = Some(link);
+        self
     }
 
     /// Lets web pages from `origins` call the API (see [`CorsOrigins`]).

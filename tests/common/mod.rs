@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+pub mod broker;
+
 use std::path::PathBuf;
 use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 

@@ -1,0 +1,203 @@
+//! A real `nats-server` for the tests: on 127.0.0.1 with ports of its own, JetStream in a temp
+//! store, a WebSocket listener (for browsers) and the monitoring port, from a config written to a
+//! temp dir. scripts/test.sh installs nats-server when it is missing; without it (and without
+//! `VEMLIGHT_REQUIRE_BROKER=1`, which scripts/test.sh sets) the broker tests say so and skip.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The `nats-server` binary, if installed (Debian puts it in /usr/sbin).
+pub fn nats_server() -> Option<PathBuf> {
+    let candidates = std::env::var_os("PATH")
+        .map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
+        .unwrap_or_default()
+        .into_iter()
+        .chain([
+            "/usr/sbin".into(),
+            "/usr/local/bin".into(),
+            "/usr/bin".into(),
+        ]);
+    candidates
+        .map(|d| d.join("nats-server"))
+        .find(|p| p.is_file())
+}
+
+/// `None` (after saying why) when nats-server is missing and the run does not require it.
+pub fn broker_or_skip(test: &str) -> Option<Broker> {
+    if nats_server().is_none() {
+        assert!(
+            std::env::var_os("VEMLIGHT_REQUIRE_BROKER").is_none(),
+            "nats-server is not installed (scripts/test.sh installs it)"
+        );
+        eprintln!("skipping {test}: nats-server is not installed (scripts/test.sh installs it)");
+        return None;
+    }
+    Some(Broker::start(Settings::default()))
+}
+
+/// Knobs of the broker's config.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    /// How long the server waits on a client's socket before cutting it off as a slow consumer.
+    pub write_deadline: &'static str,
+    /// Bytes pending for one client before it is a slow consumer (at least `max_payload`).
+    pub max_pending: u64,
+    /// Largest message.
+    pub max_payload: u64,
+    pub jetstream: bool,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            write_deadline: "2s",
+            max_pending: 64 * 1024 * 1024,
+            max_payload: 1024 * 1024,
+            jetstream: true,
+        }
+    }
+}
+
+/// A running nats-server, killed when dropped.
+pub struct Broker {
+    child: Option<Child>,
+    pub port: u16,
+    pub ws_port: u16,
+    pub http_port: u16,
+    dir: PathBuf,
+    settings: Settings,
+}
+
+/// A port free now on 127.0.0.1.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+impl Broker {
+    pub fn start(settings: Settings) -> Broker {
+        let dir = std::env::temp_dir().join(format!(
+            "vemlight-nats-{}-{}",
+            std::process::id(),
+            free_port()
+        ));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut b = Broker {
+            child: None,
+            port: free_port(),
+            ws_port: free_port(),
+            http_port: free_port(),
+            dir,
+            settings,
+        };
+        b.spawn();
+        b
+    }
+
+    fn spawn(&mut self) {
+        let conf = self.dir.join("nats.conf");
+        let store = self.dir.join("js");
+        let jetstream = if self.settings.jetstream {
+            format!(
+                "jetstream {{\n  store_dir: \"{}\"\n  max_memory_store: 268435456\n  max_file_store: 67108864\n}}\n",
+                store.display()
+            )
+        } else {
+            String::new()
+        };
+        let text = format!(
+            "listen: 127.0.0.1:{port}\nhttp: 127.0.0.1:{http}\nwrite_deadline: \"{wd}\"\nmax_pending: {mp}\nmax_payload: {pl}\n\
+             max_connections: 20000\n{jetstream}\
+             websocket {{\n  listen: \"127.0.0.1:{ws}\"\n  no_tls: true\n}}\n",
+            port = self.port,
+            http = self.http_port,
+            ws = self.ws_port,
+            wd = self.settings.write_deadline,
+            mp = self.settings.max_pending,
+            pl = self.settings.max_payload,
+        );
+        std::fs::File::create(&conf)
+            .unwrap()
+            .write_all(text.as_bytes())
+            .unwrap();
+        let child = Command::new(nats_server().expect("nats-server"))
+            .arg("-c")
+            .arg(&conf)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(self.dir.join("nats.log")).unwrap())
+            .spawn()
+            .expect("start nats-server");
+        self.child = Some(child);
+        // Ready once the client and monitoring ports answer.
+        let deadline = Instant::now() + Duration::from_secs(15);
+        loop {
+            let up = [self.port, self.ws_port, self.http_port].iter().all(|p| {
+                std::net::TcpStream::connect_timeout(
+                    &([127, 0, 0, 1], *p).into(),
+                    Duration::from_millis(200),
+                )
+                .is_ok()
+            });
+            if up {
+                break;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "nats-server did not come up: {}",
+                std::fs::read_to_string(self.dir.join("nats.log")).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// `nats://127.0.0.1:PORT`.
+    pub fn url(&self) -> String {
+        format!("nats://127.0.0.1:{}", self.port)
+    }
+
+    /// The WebSocket listener, `ws://127.0.0.1:PORT`.
+    pub fn ws_url(&self) -> String {
+        format!("ws://127.0.0.1:{}", self.ws_port)
+    }
+
+    /// The monitoring endpoint `path` (`varz`, `connz`, `subsz`) as JSON.
+    pub fn monitor(&self, path: &str) -> serde_json::Value {
+        use std::io::Read;
+        let mut s = std::net::TcpStream::connect(("127.0.0.1", self.http_port)).unwrap();
+        write!(
+            s,
+            "GET /{path} HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
+        )
+        .unwrap();
+        let mut body = String::new();
+        s.read_to_string(&mut body).unwrap();
+        let json = body.split_once("\r\n\r\n").map(|x| x.1).unwrap_or("");
+        serde_json::from_str(json).unwrap_or_else(|e| panic!("monitor /{path}: {e}: {body}"))
+    }
+
+    /// Kills the server (a broker that goes away).
+    pub fn kill(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    /// Starts it again on the same ports (a broker restarted: its memory store is empty).
+    pub fn restart(&mut self) {
+        self.kill();
+        self.spawn();
+    }
+}
+
+impl Drop for Broker {
+    fn drop(&mut self) {
+        self.kill();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
