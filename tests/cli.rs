@@ -520,3 +520,64 @@ fn help_lists_the_values_of_enumerated_flags() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// `serve --publish`: a broker URL with credentials on the command line, a camera name that is
+/// not a subject token, a bad count list or half a login are refused before anything starts.
+#[test]
+fn serve_publish_configuration_errors_exit_with_a_message() {
+    let url = "nats://127.0.0.1:1";
+    for (args, env, needle) in [
+        (
+            vec!["--publish", "nats://me:secret@127.0.0.1:4222"],
+            None,
+            "put the URL in VEMLIGHT_NATS",
+        ),
+        (
+            vec!["--publish", "http://me:secret@127.0.0.1:4222"],
+            None,
+            "scheme must be",
+        ),
+        (
+            vec!["--publish", url, "--camera", "roof.east"],
+            None,
+            "NATS subject token",
+        ),
+        (
+            vec!["--publish", url, "--publish-lights", "8,0"],
+            None,
+            "--publish-lights: 0",
+        ),
+        (
+            vec!["--publish", url, "--publish-lights", "1,2,3,4,5,6,7,8,9"],
+            None,
+            "at most 8",
+        ),
+        (
+            vec!["--publish", url],
+            Some(("VEMLIGHT_NATS_USER", "viewer")),
+            "without VEMLIGHT_NATS_PASSWORD",
+        ),
+        (
+            vec!["--publish", url, "--nats-token-file", "/no/such/token"],
+            None,
+            "--nats-token-file '/no/such/token'",
+        ),
+        (
+            vec!["--publish", url, "--nats-creds", "/no/such/creds"],
+            None,
+            "--nats-creds '/no/such/creds'",
+        ),
+    ] {
+        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"));
+        cmd.args(["serve", "--bind", "127.0.0.1:0", "--sky-size", "64x32"])
+            .args(&args)
+            .env_remove("VEMLIGHT_NATS_USER");
+        if let Some((k, v)) = env {
+            cmd.env(k, v);
+        }
+        let out = cmd.output().unwrap();
+        assert_fails_with(&out, needle);
+        // The secret is not echoed back.
+        assert!(!String::from_utf8_lossy(&out.stderr).contains("secret"));
+    }
+}

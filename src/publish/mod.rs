@@ -276,11 +276,12 @@ impl Queue {
 /// with credentials only when `from_env` (a URL on the command line is seen by every user of the
 /// machine in the process list).
 pub fn check_url(url: &str, from_env: bool) -> Result<(), String> {
+    let shown = redact_url(url);
     let rest = match url.split_once("://") {
         Some((scheme, rest)) => {
             if !matches!(scheme, "nats" | "tls" | "ws" | "wss") {
                 return Err(format!(
-                    "--publish '{url}': the scheme must be nats://, tls://, ws:// or wss://"
+                    "--publish '{shown}': the scheme must be nats://, tls://, ws:// or wss://"
                 ));
             }
             rest
@@ -290,7 +291,7 @@ pub fn check_url(url: &str, from_env: bool) -> Result<(), String> {
     let authority = rest.split(['/', '?', '#']).next().unwrap_or("");
     if authority.is_empty() {
         return Err(format!(
-            "--publish '{url}' names no host: give nats://HOST:PORT"
+            "--publish '{shown}' names no host: give nats://HOST:PORT"
         ));
     }
     if authority.contains('@') && !from_env {
