@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::broker::{Broker, Settings, broker_or_skip};
+use common::broker::{Broker, Settings, broker_or_skip, have_broker};
 use futures_util::StreamExt;
 use serde_json::Value;
 use std::time::{Duration, Instant};
@@ -21,6 +21,12 @@ impl Daemon {
         let mut all = vec!["--publish", &url, "--camera", camera];
         all.extend_from_slice(args);
         let (child, addr) = common::spawn_serve(&all);
+        Daemon { child, addr }
+    }
+
+    /// A daemon given only `args` and the environment `env` (the broker's URL among them, say).
+    fn start_with_env(args: &[&str], env: &[(&str, &str)]) -> Daemon {
+        let (child, addr) = common::spawn_serve_with_env(args, env);
         Daemon { child, addr }
     }
 
@@ -246,7 +252,7 @@ async fn a_broker_that_goes_away_never_pauses_the_daemon_and_publishing_resumes(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_subscriber_that_stops_reading_does_not_slow_the_daemon() {
     use std::io::{BufRead, Write};
-    if common::broker::nats_server().is_none() && broker_or_skip("slow subscriber").is_none() {
+    if !have_broker("slow subscriber") {
         return;
     }
     // The broker cuts off a client that leaves 256 KiB unread for a second.
@@ -407,4 +413,99 @@ async fn a_thousand_subscribers_all_receive_sets() {
         let seqs = t.await.unwrap();
         assert!(seqs.windows(2).all(|w| w[1] > w[0]), "{seqs:?}");
     }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn without_jetstream_sets_still_go_out_and_healthz_says_why_there_is_no_last_value() {
+    if !have_broker("no JetStream") {
+        return;
+    }
+    let broker = Broker::start(Settings {
+        jetstream: false,
+        ..Settings::default()
+    });
+    let d = Daemon::start(&broker, "shed", &["--lights", "8"]);
+    let nc = async_nats::connect(broker.url()).await.unwrap();
+    let mut sub = nc.subscribe("vemlight.v1.shed.lights.8").await.unwrap();
+    let doc = next_json(&mut sub, Duration::from_secs(20)).await;
+    assert_eq!(doc["lights"].as_array().unwrap().len(), 8);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let h = loop {
+        let (code, h) = d.get_json("/healthz").await;
+        assert_eq!(code, 200, "{h}");
+        if !h["broker"]["stream_error"].is_null() {
+            break h;
+        }
+        assert!(Instant::now() < deadline, "no stream error reported: {h}");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    assert_eq!(h["status"], "ok", "{h}");
+    assert_eq!(h["broker"]["state"], "ok", "{h}");
+    assert!(h["broker"]["stream"].is_null(), "{h}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn credentials_come_from_the_environment_and_a_refused_login_leaves_the_daemon_healthy() {
+    if !have_broker("broker credentials") {
+        return;
+    }
+    let broker = Broker::start(Settings {
+        extra:
+            "authorization {\n  users = [\n    { user: \"cam\", password: \"s3cret-pw\" }\n  ]\n}\n"
+                .into(),
+        ..Settings::default()
+    });
+    let with_user = format!("nats://cam:s3cret-pw@127.0.0.1:{}", broker.port);
+    // The whole URL in VEMLIGHT_NATS; and the user and password in their own variables.
+    let by_url = Daemon::start_with_env(
+        &["--camera", "gate", "--lights", "8"],
+        &[("VEMLIGHT_NATS", &with_user)],
+    );
+    let url = broker.url();
+    let by_vars = Daemon::start_with_env(
+        &["--publish", &url, "--camera", "door", "--lights", "8"],
+        &[
+            ("VEMLIGHT_NATS_USER", "cam"),
+            ("VEMLIGHT_NATS_PASSWORD", "s3cret-pw"),
+        ],
+    );
+    let refused = Daemon::start_with_env(
+        &["--publish", &url, "--camera", "side", "--lights", "8"],
+        &[
+            ("VEMLIGHT_NATS_USER", "cam"),
+            ("VEMLIGHT_NATS_PASSWORD", "wrong"),
+        ],
+    );
+    let nc = async_nats::ConnectOptions::with_user_and_password("cam".into(), "s3cret-pw".into())
+        .connect(broker.url())
+        .await
+        .unwrap();
+    for camera in ["gate", "door"] {
+        let mut sub = nc
+            .subscribe(format!("vemlight.v1.{camera}.lights.8"))
+            .await
+            .unwrap();
+        next_json(&mut sub, Duration::from_secs(20)).await;
+    }
+    let (_, h) = by_url.get_json("/healthz").await;
+    assert_eq!(
+        h["broker"]["url"],
+        format!("nats://***@127.0.0.1:{}", broker.port)
+    );
+    assert!(!h.to_string().contains("s3cret"), "{h}");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let h = loop {
+        let (code, h) = refused.get_json("/healthz").await;
+        if code == 200 {
+            break h;
+        }
+        assert!(Instant::now() < deadline, "{h}");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    // Refused by the broker, serving its own clients all the same.
+    assert_eq!(h["status"], "ok", "{h}");
+    assert_eq!(h["broker"]["state"], "connecting", "{h}");
+    let why = h["broker"]["last_error"].as_str().unwrap_or_default();
+    assert!(why.contains("authorization"), "{h}");
+    assert!(!by_vars.metrics().await.contains("s3cret"));
 }

@@ -120,6 +120,9 @@ struct LinkInner {
     /// The JetStream stream, once made on this connection.
     stream: Option<String>,
     stream_error: Option<String>,
+    /// The broker's or the client's last complaint since the link was last up (an authorization
+    /// violation, say).
+    last_error: Option<String>,
 }
 
 /// The broker link as `/healthz` reports it.
@@ -131,6 +134,8 @@ pub struct LinkHealth {
     /// The JetStream stream holding the last values, when made; `None` with `stream_error`.
     pub stream: Option<String>,
     pub stream_error: Option<String>,
+    /// Why the link is not up, when the broker or the client said.
+    pub last_error: Option<String>,
     pub subjects: Vec<String>,
     pub published: u64,
     pub dropped: u64,
@@ -147,6 +152,7 @@ impl Link {
                 state: LinkState::Connecting,
                 stream: None,
                 stream_error: None,
+                last_error: None,
             }),
             published: AtomicU64::new(0),
             dropped_queue_full: AtomicU64::new(0),
@@ -189,6 +195,7 @@ impl Link {
             state: inner.state,
             stream: inner.stream.clone(),
             stream_error: inner.stream_error.clone(),
+            last_error: inner.last_error.clone(),
             subjects: self
                 .counts
                 .iter()
@@ -384,7 +391,8 @@ pub async fn start(cfg: PublishConfig, hub: Arc<Hub>) -> anyhow::Result<Arc<Link
 /// backoff (0 ms, then doubling up to 4 s); its events keep `link`'s state.
 async fn connect(cfg: &PublishConfig, link: Arc<Link>) -> anyhow::Result<async_nats::Client> {
     use anyhow::Context;
-    let mut opts = match &cfg.auth {
+    let (url, auth) = split_credentials(&cfg.url, &cfg.auth)?;
+    let mut opts = match &auth {
         NatsAuth::None => async_nats::ConnectOptions::new(),
         NatsAuth::Token(t) => async_nats::ConnectOptions::with_token(t.clone()),
         NatsAuth::UserPassword(u, p) => {
@@ -405,7 +413,10 @@ async fn connect(cfg: &PublishConfig, link: Arc<Link>) -> anyhow::Result<async_n
                 match event {
                     async_nats::Event::Connected => {
                         let n = link.connects.fetch_add(1, Relaxed);
-                        link.inner().state = LinkState::Ok;
+                        let mut inner = link.inner();
+                        inner.state = LinkState::Ok;
+                        inner.last_error = None;
+                        drop(inner);
                         if n > 0 {
                             tracing::info!("broker link {} is back", link.url);
                         }
@@ -422,13 +433,46 @@ async fn connect(cfg: &PublishConfig, link: Arc<Link>) -> anyhow::Result<async_n
                             link.url
                         );
                     }
+                    async_nats::Event::ServerError(e) => {
+                        link.inner().last_error = Some(format!("server: {e}"));
+                    }
+                    async_nats::Event::ClientError(e) => {
+                        link.inner().last_error = Some(format!("client: {e}"));
+                    }
                     other => tracing::debug!("broker: {other}"),
                 }
             }
         });
-    opts.connect(cfg.url.as_str())
+    opts.connect(url.as_str())
         .await
         .with_context(|| format!("--publish '{}'", redact_url(&cfg.url)))
+}
+
+/// The broker's address without credentials, and the login: the URL's own (`nats://user:pass@…`,
+/// or `nats://token@…`, as given in VEMLIGHT_NATS) when it carries one, which the NATS client would
+/// otherwise ignore; `auth` otherwise. Both at once is an error.
+fn split_credentials(url: &str, auth: &NatsAuth) -> anyhow::Result<(String, NatsAuth)> {
+    let addr: async_nats::ServerAddr = url
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--publish '{}': {e}", redact_url(url)))?;
+    let Some(user) = addr.username().filter(|u| !u.is_empty()).map(str::to_owned) else {
+        return Ok((url.to_string(), auth.clone()));
+    };
+    if !matches!(auth, NatsAuth::None) {
+        anyhow::bail!(
+            "the broker URL carries credentials and {auth:?} is given too: give one login"
+        );
+    }
+    let password = addr.password().map(str::to_owned);
+    let mut bare = addr.into_inner();
+    // Setting an empty user and no password on a URL with a host cannot fail.
+    let _ = bare.set_password(None);
+    let _ = bare.set_username("");
+    let auth = match password {
+        Some(p) => NatsAuth::UserPassword(user, p),
+        None => NatsAuth::Token(user),
+    };
+    Ok((bare.to_string(), auth))
 }
 
 /// Hands each new set of one count to the queue.
@@ -641,6 +685,23 @@ mod tests {
         );
         assert_eq!(redact_url("nats://broker:4222"), "nats://broker:4222");
         assert_eq!(redact_url("tok@broker:4222"), "***@broker:4222");
+    }
+
+    #[test]
+    fn credentials_in_the_url_become_the_login() {
+        let (url, auth) = split_credentials("nats://me:pw@broker:4222", &NatsAuth::None).unwrap();
+        assert_eq!(url, "nats://broker:4222");
+        assert!(matches!(auth, NatsAuth::UserPassword(u, p) if u == "me" && p == "pw"));
+        let (url, auth) = split_credentials("nats://tok@broker:4222", &NatsAuth::None).unwrap();
+        assert_eq!(url, "nats://broker:4222");
+        assert!(matches!(auth, NatsAuth::Token(t) if t == "tok"));
+        let (url, auth) =
+            split_credentials("nats://broker:4222", &NatsAuth::Token("t".into())).unwrap();
+        assert_eq!(url, "nats://broker:4222");
+        assert!(matches!(auth, NatsAuth::Token(_)));
+        assert!(
+            split_credentials("nats://me:pw@broker:4222", &NatsAuth::Token("t".into())).is_err()
+        );
     }
 
     #[test]

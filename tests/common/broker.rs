@@ -24,17 +24,23 @@ pub fn nats_server() -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
-/// `None` (after saying why) when nats-server is missing and the run does not require it.
-pub fn broker_or_skip(test: &str) -> Option<Broker> {
+/// Whether nats-server is there; false (after saying why) when it is missing and the run does not
+/// require it.
+pub fn have_broker(test: &str) -> bool {
     if nats_server().is_none() {
         assert!(
             std::env::var_os("VEMLIGHT_REQUIRE_BROKER").is_none(),
             "nats-server is not installed (scripts/test.sh installs it)"
         );
         eprintln!("skipping {test}: nats-server is not installed (scripts/test.sh installs it)");
-        return None;
+        return false;
     }
-    Some(Broker::start(Settings::default()))
+    true
+}
+
+/// A broker with the default settings, or `None` as [`have_broker`] says.
+pub fn broker_or_skip(test: &str) -> Option<Broker> {
+    have_broker(test).then(|| Broker::start(Settings::default()))
 }
 
 /// Knobs of the broker's config.
@@ -47,6 +53,8 @@ pub struct Settings {
     /// Largest message.
     pub max_payload: u64,
     pub jetstream: bool,
+    /// More configuration, appended as is (an `authorization {}` block, say).
+    pub extra: String,
 }
 
 impl Default for Settings {
@@ -56,6 +64,7 @@ impl Default for Settings {
             max_pending: 64 * 1024 * 1024,
             max_payload: 1024 * 1024,
             jetstream: true,
+            extra: String::new(),
         }
     }
 }
@@ -113,13 +122,14 @@ impl Broker {
         let text = format!(
             "listen: 127.0.0.1:{port}\nhttp: 127.0.0.1:{http}\nwrite_deadline: \"{wd}\"\nmax_pending: {mp}\nmax_payload: {pl}\n\
              max_connections: 20000\n{jetstream}\
-             websocket {{\n  listen: \"127.0.0.1:{ws}\"\n  no_tls: true\n}}\n",
+             websocket {{\n  listen: \"127.0.0.1:{ws}\"\n  no_tls: true\n}}\n{extra}\n",
             port = self.port,
             http = self.http_port,
             ws = self.ws_port,
             wd = self.settings.write_deadline,
             mp = self.settings.max_pending,
             pl = self.settings.max_payload,
+            extra = self.settings.extra,
         );
         std::fs::File::create(&conf)
             .unwrap()

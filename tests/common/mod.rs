@@ -107,9 +107,18 @@ pub fn dwa_with_a_huge_ac_count() -> Vec<u8> {
 /// Starts `vemlight serve --bind 127.0.0.1:0 ARGS` (stdin piped) and reads the address it
 /// listens on from its log.
 pub fn spawn_serve(args: &[&str]) -> (std::process::Child, std::net::SocketAddr) {
+    spawn_serve_with_env(args, &[])
+}
+
+/// [`spawn_serve`] with environment variables set for the daemon.
+pub fn spawn_serve_with_env(
+    args: &[&str],
+    env: &[(&str, &str)],
+) -> (std::process::Child, std::net::SocketAddr) {
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
         .args(["serve", "--bind", "127.0.0.1:0"])
         .args(args)
+        .envs(env.iter().copied())
         .env("RUST_LOG", "info")
         .env("NO_COLOR", "1")
         .stdin(std::process::Stdio::piped())
