@@ -137,6 +137,15 @@ pub struct Metrics {
     pub ws_bytes_sent: AtomicU64,
     /// Clients dropped because they stopped reading for longer than the send timeout.
     pub ws_clients_stalled: AtomicU64,
+    /// WebSocket handshakes answered 503 because `--max-clients` clients were connected.
+    pub ws_clients_refused: AtomicU64,
+    /// Connections open now, upgraded WebSocket connections included.
+    pub connections_open: AtomicU64,
+    /// Times the accept loop stopped accepting because `--max-connections` were open.
+    pub accept_paused: AtomicU64,
+    /// `GET /v1/lights/latest` requests answered 503 because their light count would have
+    /// taken a stream slot beyond the share such requests may hold.
+    pub latest_refused: AtomicU64,
     pub http_lights_requests: AtomicU64,
     pub http_lights_errors: AtomicU64,
     /// Getting a frame from the source, with the resampling of the rows handed on while it
@@ -232,6 +241,24 @@ impl Metrics {
         );
         counter(
             &mut s,
+            "ws_clients_refused_total",
+            "WebSocket handshakes refused (503) because --max-clients clients were connected.",
+            &self.ws_clients_refused,
+        );
+        counter(
+            &mut s,
+            "accept_paused_total",
+            "Times the accept loop paused at --max-connections open connections (new ones wait in the listen backlog).",
+            &self.accept_paused,
+        );
+        counter(
+            &mut s,
+            "latest_refused_total",
+            "GET /v1/lights/latest requests refused (503): too many light counts asked for by nothing but such requests.",
+            &self.latest_refused,
+        );
+        counter(
+            &mut s,
             "http_lights_requests_total",
             "POST /v1/lights requests.",
             &self.http_lights_requests,
@@ -248,6 +275,16 @@ impl Metrics {
         );
         let _ = writeln!(s, "# TYPE vemlight_ws_clients gauge");
         let _ = writeln!(s, "vemlight_ws_clients {}", self.ws_clients.load(Relaxed));
+        let _ = writeln!(
+            s,
+            "# HELP vemlight_connections_open Connections open now (WebSocket clients included)."
+        );
+        let _ = writeln!(s, "# TYPE vemlight_connections_open gauge");
+        let _ = writeln!(
+            s,
+            "vemlight_connections_open {}",
+            self.connections_open.load(Relaxed)
+        );
         let _ = writeln!(
             s,
             "# HELP vemlight_stage_seconds Time spent per pipeline stage (capture is the whole wait for \

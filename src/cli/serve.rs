@@ -73,6 +73,14 @@ pub struct ServeArgs {
     /// Concurrent POST extractions (default: the number of cores).
     #[arg(long)]
     pub post_workers: Option<usize>,
+    /// Most WebSocket clients of /v1/stream at once; one more is answered 503 (default: the
+    /// descriptor limit, `ulimit -n`, less 320: 704 for 1024; docs/API.md "Limits").
+    #[arg(long, env = "VEMLIGHT_MAX_CLIENTS")]
+    pub max_clients: Option<usize>,
+    /// Most connections open at once, WebSocket clients included; at the cap new connections wait
+    /// in the listen backlog (default: --max-clients + 64, or the descriptor limit less 256).
+    #[arg(long, env = "VEMLIGHT_MAX_CONNECTIONS")]
+    pub max_connections: Option<usize>,
     /// Synthetic sky size, WxH (lat-long, 2:1).
     #[arg(long, default_value = "1024x512", value_parser = parse_size)]
     pub sky_size: (usize, usize),
@@ -220,7 +228,7 @@ pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
 /// SIGTERM.
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     use crate::daemon::{self, Hub, PipelineConfig};
-    use crate::server::{AppState, CorsOrigins, Uploads, WsConfig, run, shutdown_signal};
+    use crate::server::{AppState, CorsOrigins, Limits, Uploads, WsConfig, run, shutdown_signal};
     use crate::temporal::{FilterKind, FilterSpec};
 
     tracing_subscriber::fmt()
@@ -272,6 +280,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
 
     let cors = CorsOrigins::parse(&args.cors_origins).map_err(anyhow::Error::msg)?;
     let publish = args.publish.config(args.lights)?;
+    let limits =
+        Limits::resolve(args.max_clients, args.max_connections).map_err(anyhow::Error::msg)?;
 
     let hub = Hub::new(args.lights, daemon::MAX_LIGHT_COUNTS, &source.describe());
     let cfg = PipelineConfig {
@@ -291,7 +301,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         Uploads::new(args.max_body, args.max_pixels, workers),
         WsConfig::default(),
     )
-    .with_cors(cors);
+    .with_cors(cors)
+    .with_limits(limits);
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async move {
         let listener = tokio::net::TcpListener::bind(addr)
@@ -316,6 +327,11 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
             } else {
                 ""
             }
+        );
+        tracing::info!(
+            "at most {} WebSocket clients and {} connections at once",
+            state.limits.max_ws_clients(),
+            state.limits.max_connections()
         );
         let hub_for_signal = hub.clone();
         run(listener, state, async move {

@@ -155,10 +155,60 @@ impl From<usize> for StreamKey {
     }
 }
 
-/// One stream key's channel and how many subscribers want it.
+/// One stream key's channel and who wants it.
 struct Channel {
-    subscribers: usize,
+    /// Streams (WebSocket clients), each holding the key for as long as it lives.
+    streams: usize,
+    /// One-off requests (`/v1/lights/latest`) waiting for the key's next set.
+    once: usize,
     tx: watch::Sender<Option<Arc<Published>>>,
+}
+
+impl Channel {
+    fn new() -> Self {
+        Channel {
+            streams: 0,
+            once: 0,
+            tx: watch::channel(None).0,
+        }
+    }
+
+    fn count(&mut self, interest: Interest) -> &mut usize {
+        match interest {
+            Interest::Stream => &mut self.streams,
+            Interest::Once => &mut self.once,
+        }
+    }
+}
+
+/// Who subscribes: a stream, or a one-off request for a key's set.
+///
+/// Each distinct key costs the pipeline assignment passes every frame, so the hub serves at most
+/// `max_light_counts` of them. One-off requests (`/v1/lights/latest?lights=N`) are cheap to send
+/// in bursts of distinct counts, and each would hold a key for up to the request's wait: unchecked,
+/// a burst takes every key and a stream asking for a new count is refused. So keys asked for by
+/// nothing but one-off requests may hold at most a quarter of the key slots
+/// ([`Hub::once_only_budget`]); the rest are left to streams, and a one-off request beyond its
+/// share is refused at once ([`SubscribeError::Full`], which the server answers 503). A one-off
+/// request for a key a stream already has costs nothing and is always taken. (The alternative,
+/// a one-off extraction from the last frame on the server's side, would need the frame and an
+/// extractor outside the pipeline and would cost a whole extraction a request.)
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Interest {
+    Stream,
+    Once,
+}
+
+/// Why a subscription was refused.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum SubscribeError {
+    /// The key is out of range.
+    #[error("{0}")]
+    Invalid(String),
+    /// Taking the key would exceed the distinct keys served at once (or, for a one-off request,
+    /// the share of them one-off requests may hold): a retry may succeed once others have gone.
+    #[error("{0}")]
+    Full(String),
 }
 
 /// Shared between the pipeline threads and the server: the latest LightSet per light count,
@@ -177,6 +227,7 @@ pub struct Hub {
 /// A client's interest in one light count; dropping it tells the pipeline.
 pub struct Subscription {
     hub: Arc<Hub>,
+    interest: Interest,
     pub key: StreamKey,
     pub rx: watch::Receiver<Option<Arc<Published>>>,
 }
@@ -185,8 +236,9 @@ impl Drop for Subscription {
     fn drop(&mut self) {
         let mut ch = self.hub.channels.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(c) = ch.get_mut(&self.key) {
-            c.subscribers = c.subscribers.saturating_sub(1);
-            if c.subscribers == 0 && self.key != StreamKey::from(self.hub.default_lights) {
+            let n = c.count(self.interest);
+            *n = n.saturating_sub(1);
+            if c.streams + c.once == 0 && self.key != StreamKey::from(self.hub.default_lights) {
                 ch.remove(&self.key);
             }
         }
@@ -199,13 +251,7 @@ impl Hub {
     /// two assignment passes per frame).
     pub fn new(default_lights: usize, max_light_counts: usize, source: &str) -> Arc<Self> {
         let mut channels = BTreeMap::new();
-        channels.insert(
-            StreamKey::from(default_lights),
-            Channel {
-                subscribers: 0,
-                tx: watch::channel(None).0,
-            },
-        );
+        channels.insert(StreamKey::from(default_lights), Channel::new());
         Arc::new(Hub {
             channels: Mutex::new(channels),
             default_lights,
@@ -227,33 +273,67 @@ impl Hub {
         self.default_lights
     }
 
-    /// Subscribes to the sets of `key` (a light count, or a [`StreamKey`] with an error target
-    /// and a shadow budget); refused when the key is out of range or would exceed the number of
-    /// distinct keys served at once.
+    /// Subscribes a stream to the sets of `key` (a light count, or a [`StreamKey`] with an error
+    /// target and a shadow budget); refused when the key is out of range or would exceed the
+    /// number of distinct keys served at once.
     pub fn subscribe(self: &Arc<Self>, key: impl Into<StreamKey>) -> Result<Subscription, String> {
+        self.subscribe_as(key, Interest::Stream)
+            .map_err(|e| e.to_string())
+    }
+
+    /// Subscribes `interest` to the sets of `key`: as [`Hub::subscribe`], and a one-off request
+    /// for a key no stream has is refused beyond [`Hub::once_only_budget`] (see [`Interest`]).
+    pub fn subscribe_as(
+        self: &Arc<Self>,
+        key: impl Into<StreamKey>,
+        interest: Interest,
+    ) -> Result<Subscription, SubscribeError> {
         let key = key.into();
-        let key = StreamKey::new(key.lights, key.max_error(), key.shadowed)?;
+        let key = StreamKey::new(key.lights, key.max_error(), key.shadowed)
+            .map_err(SubscribeError::Invalid)?;
         let mut ch = self.channels.lock().unwrap_or_else(|e| e.into_inner());
-        if !ch.contains_key(&key) && ch.len() >= self.max_light_counts {
-            return Err(format!(
-                "the daemon already serves {} distinct streams (light counts {}); ask for one of them",
-                ch.len(),
+        if !ch.contains_key(&key) {
+            let counts = || {
                 ch.keys()
                     .map(|k| k.lights.to_string())
                     .collect::<Vec<_>>()
                     .join(", ")
-            ));
+            };
+            if ch.len() >= self.max_light_counts {
+                return Err(SubscribeError::Full(format!(
+                    "the daemon already serves {} distinct streams (light counts {}); ask for one of them",
+                    ch.len(),
+                    counts()
+                )));
+            }
+            let default = StreamKey::from(self.default_lights);
+            let once_only = ch
+                .iter()
+                .filter(|&(k, c)| *k != default && c.streams == 0)
+                .count();
+            if interest == Interest::Once && once_only >= self.once_only_budget() {
+                return Err(SubscribeError::Full(format!(
+                    "{once_only} light counts no stream asks for are being computed for other \
+                     requests, the most at once; ask for one a stream has (light counts {}) or \
+                     retry shortly",
+                    counts()
+                )));
+            }
         }
-        let c = ch.entry(key).or_insert_with(|| Channel {
-            subscribers: 0,
-            tx: watch::channel(None).0,
-        });
-        c.subscribers += 1;
+        let c = ch.entry(key).or_insert_with(Channel::new);
+        *c.count(interest) += 1;
         Ok(Subscription {
             hub: self.clone(),
+            interest,
             key,
             rx: c.tx.subscribe(),
         })
+    }
+
+    /// How many keys that no stream has one-off requests may hold at once: a quarter of the
+    /// distinct keys served, at least 1 (4 of [`MAX_LIGHT_COUNTS`](super::MAX_LIGHT_COUNTS)).
+    pub fn once_only_budget(&self) -> usize {
+        (self.max_light_counts / 4).max(1)
     }
 
     /// The latest set for the default light count.
@@ -315,5 +395,48 @@ impl Hub {
     /// The daemon's shutdown token: `cancelled().await` on it to end with the daemon.
     pub fn shutdown_token(&self) -> CancellationToken {
         self.shutdown.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_off_requests_hold_at_most_their_share_of_keys() {
+        let hub = Hub::new(64, 16, "test");
+        assert_eq!(hub.once_only_budget(), 4);
+        let once: Vec<_> = (1..=4)
+            .map(|n| hub.subscribe_as(n, Interest::Once).unwrap())
+            .collect();
+        assert!(matches!(
+            hub.subscribe_as(5, Interest::Once),
+            Err(SubscribeError::Full(_))
+        ));
+        // A count a stream has, or the default, is free for one-off requests.
+        let stream = hub.subscribe(8).unwrap();
+        let _a = hub.subscribe_as(8, Interest::Once).unwrap();
+        let _b = hub.subscribe_as(64, Interest::Once).unwrap();
+        // Streams get every remaining key: 16 less the default and the four one-off keys.
+        let streams: Vec<_> = (100..110).map(|n| hub.subscribe(n).unwrap()).collect();
+        assert_eq!(hub.keys().len(), 16);
+        let Err(full) = hub.subscribe(200) else {
+            panic!("a 17th key was taken");
+        };
+        assert!(full.contains("16 distinct streams"), "{full}");
+        // A stream joining a one-off key makes it a stream key: a one-off slot is free again.
+        drop(streams);
+        let _s1 = hub.subscribe(1).unwrap();
+        let extra = hub.subscribe_as(5, Interest::Once).unwrap();
+        // Keys go when their last subscriber does, whichever kind.
+        drop((once, extra, stream));
+        assert_eq!(
+            hub.keys(),
+            vec![StreamKey::from(1), StreamKey::from(8), StreamKey::from(64)]
+        );
+        assert!(matches!(
+            hub.subscribe_as(0, Interest::Once),
+            Err(SubscribeError::Invalid(_))
+        ));
     }
 }

@@ -30,6 +30,11 @@ pub enum ApiError {
     /// 503: nothing to serve yet, or the daemon is busy.
     #[error("{0}")]
     Unavailable(String),
+    /// 503 with `Retry-After`: a cap on what the daemon serves at once is reached (WebSocket
+    /// clients, light counts asked for only by `/v1/lights/latest`); the same request may succeed
+    /// after `retry_after_s`.
+    #[error("{detail}")]
+    AtCapacity { detail: String, retry_after_s: u32 },
     /// 400, 405 or 426 (as axum's handshake check says): `/v1/stream` asked for without a
     /// WebSocket handshake.
     #[error("{1}")]
@@ -70,7 +75,9 @@ impl ApiError {
             ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             ApiError::UnsupportedMedia(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             ApiError::Unprocessable(_) => StatusCode::UNPROCESSABLE_ENTITY,
-            ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
+            ApiError::Unavailable(_) | ApiError::AtCapacity { .. } => {
+                StatusCode::SERVICE_UNAVAILABLE
+            }
             ApiError::Timeout(_) => StatusCode::REQUEST_TIMEOUT,
             ApiError::NotWebSocket(status, _) => *status,
             ApiError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
@@ -99,6 +106,10 @@ impl IntoResponse for ApiError {
             header::CONTENT_TYPE,
             HeaderValue::from_static("application/problem+json"),
         );
+        if let ApiError::AtCapacity { retry_after_s, .. } = &self {
+            resp.headers_mut()
+                .insert(header::RETRY_AFTER, HeaderValue::from(*retry_after_s));
+        }
         if matches!(self, ApiError::Unauthorized) {
             resp.headers_mut().insert(
                 header::WWW_AUTHENTICATE,

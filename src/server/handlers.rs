@@ -4,7 +4,9 @@
 use super::error::ApiError;
 use super::query::{LatestQuery, Params};
 use super::state::AppState;
+use crate::daemon::hub::{Interest, SubscribeError};
 use crate::daemon::{SourceState, StreamKey};
+use crate::metrics::Metrics;
 use axum::extract::State;
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
@@ -28,7 +30,8 @@ pub(super) async fn viewer() -> Response {
 
 /// `GET /healthz`: 200 while the daemon can serve a light set (status "degraded" when the source
 /// has failed, ended or stalled and the last good set is being served), 503 before the first one
-/// ("starting", or "failed" when the source ended or failed before giving one).
+/// ("starting", or "failed" when the source ended or failed before giving one). It also gives the
+/// WebSocket clients and connections against their caps.
 pub(super) async fn healthz(State(state): State<AppState>) -> Response {
     let source = state.hub.health();
     let latest = state.hub.latest();
@@ -46,6 +49,10 @@ pub(super) async fn healthz(State(state): State<AppState>) -> Response {
         "latest_frame": latest.as_ref().map(|p| p.frame),
         "latest_age_s": latest.as_ref().map(|p| p.captured_at.elapsed().as_secs_f64()),
         "source": source,
+        "ws_clients": state.limits.ws_clients(),
+        "max_ws_clients": state.limits.max_ws_clients(),
+        "connections": state.hub.metrics.connections_open.load(std::sync::atomic::Ordering::Relaxed),
+        "max_connections": state.limits.max_connections(),
         "uptime_s": state.started.elapsed().as_secs_f64(),
         // The broker link's state does not change the status: the daemon's own clients are
         // served either way.
@@ -59,11 +66,21 @@ pub(super) async fn healthz(State(state): State<AppState>) -> Response {
     (code, axum::Json(body)).into_response()
 }
 
-/// `GET /metrics`: Prometheus text format: the counters and histograms, then two gauges from
-/// the source's health, for alerts on a source that has stopped.
+/// `GET /metrics`: Prometheus text format: the counters and histograms, the caps on clients and
+/// connections, then two gauges from the source's health, for alerts on a source that has
+/// stopped.
 pub(super) async fn metrics(State(state): State<AppState>) -> Response {
     use std::fmt::Write;
     let mut text = state.hub.metrics.render();
+    let _ = writeln!(
+        text,
+        "# HELP vemlight_ws_clients_max WebSocket clients taken at once (--max-clients).\n\
+         # TYPE vemlight_ws_clients_max gauge\nvemlight_ws_clients_max {}\n\
+         # HELP vemlight_connections_max Connections open at once (--max-connections).\n\
+         # TYPE vemlight_connections_max gauge\nvemlight_connections_max {}",
+        state.limits.max_ws_clients(),
+        state.limits.max_connections()
+    );
     let source = state.hub.health();
     let _ = writeln!(
         text,
@@ -92,8 +109,15 @@ pub(super) async fn metrics(State(state): State<AppState>) -> Response {
         .into_response()
 }
 
+/// How long a `/v1/lights/latest` request refused for its light count is told to wait: about the
+/// longest another such request holds its count.
+const LATEST_RETRY_AFTER_S: u32 = 2;
+
 /// `GET /v1/lights/latest[?lights=N]`: the newest published set (default light count, or N,
-/// waiting up to two frames' worth of time for a count not yet being computed).
+/// waiting up to 2 s for a count not yet being computed). A count no stream has is computed
+/// only within the share of the hub's keys such requests may hold (see
+/// [`Interest`](crate::daemon::hub::Interest)), so a burst of distinct counts cannot crowd out
+/// streams; beyond it, 503 at once.
 pub(super) async fn latest(
     Params(q): Params<LatestQuery>,
     State(state): State<AppState>,
@@ -104,7 +128,19 @@ pub(super) async fn latest(
     let published = if key == default {
         state.hub.latest()
     } else {
-        let mut sub = state.hub.subscribe(key).map_err(ApiError::BadRequest)?;
+        let mut sub = state
+            .hub
+            .subscribe_as(key, Interest::Once)
+            .map_err(|e| match e {
+                SubscribeError::Invalid(e) => ApiError::BadRequest(e),
+                SubscribeError::Full(detail) => {
+                    Metrics::inc(&state.hub.metrics.latest_refused);
+                    ApiError::AtCapacity {
+                        detail,
+                        retry_after_s: LATEST_RETRY_AFTER_S,
+                    }
+                }
+            })?;
         let wait = tokio::time::timeout(Duration::from_secs(2), sub.rx.wait_for(Option::is_some));
         match wait.await {
             Ok(Ok(v)) => v.clone(),

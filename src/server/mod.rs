@@ -23,7 +23,7 @@ mod uploads;
 
 pub use accept::{HEADER_READ_TIMEOUT, SHUTDOWN_GRACE, shutdown_signal};
 pub use error::ApiError;
-pub use state::{AppState, CorsOrigins, Uploads, WsConfig};
+pub use state::{AppState, CorsOrigins, FD_RESERVE, HTTP_MARGIN, Limits, Uploads, WsConfig};
 
 use axum::Router;
 use axum::middleware;
@@ -71,11 +71,13 @@ pub async fn run(
     let hub = state.hub.clone();
     let header_read_timeout = state.header_read_timeout;
     let ws_clients = state.ws_clients.clone();
+    let slots = state.limits.connection_slots();
     accept::serve(
         listener,
         app(state),
         hub,
         ws_clients,
+        slots,
         header_read_timeout,
         shutdown,
     )

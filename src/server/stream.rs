@@ -3,6 +3,10 @@
 //! Each client reads its own `watch` channel: a client that reads slowly simply sees fewer
 //! frames, never a queue, and never holds up the capture loop or another client. A client that
 //! stops reading for longer than the send timeout is disconnected.
+//!
+//! At most `--max-clients` clients at once ([`Limits`](super::Limits)): the handler takes a slot
+//! before it answers the handshake and the client's loop holds it until it ends, so no burst of
+//! handshakes gets more in; one more is answered 503 before the upgrade.
 
 use super::error::ApiError;
 use super::query::{Params, StreamQuery};
@@ -19,6 +23,7 @@ use futures_util::{SinkExt, StreamExt};
 use std::sync::Arc;
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::Duration;
+use tokio::sync::OwnedSemaphorePermit;
 use tokio::time::{Instant, MissedTickBehavior};
 
 /// Largest message a client may send (bytes).
@@ -34,8 +39,12 @@ const MIN_MAX_HZ: f64 = 0.001;
 /// Clients send only pongs and close frames.
 const CLIENT_READ_BUFFER: usize = 4 * 1024;
 
-/// Upgrade handler: checks the query, subscribes, hands off. Both extractors are taken as
-/// `Result`s so that a request without a handshake is told so first, whatever its query.
+/// How long a client refused at `--max-clients` is told to wait (`Retry-After`).
+const FULL_RETRY_AFTER_S: u32 = 5;
+
+/// Upgrade handler: checks the query, takes a client slot, subscribes, hands off. Both
+/// extractors are taken as `Result`s so that a request without a handshake is told so first,
+/// whatever its query.
 pub async fn stream(
     ws: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
     query: Result<Params<StreamQuery>, ApiError>,
@@ -63,6 +72,17 @@ pub async fn stream(
         )));
     }
     let key = StreamKey::new(lights, q.max_error, q.shadowed).map_err(ApiError::BadRequest)?;
+    let Some(slot) = state.limits.try_ws_slot() else {
+        Metrics::inc(&state.hub.metrics.ws_clients_refused);
+        return Err(ApiError::AtCapacity {
+            detail: format!(
+                "the daemon serves at most {} WebSocket clients at once (--max-clients) and all \
+                 are connected; retry later",
+                state.limits.max_ws_clients()
+            ),
+            retry_after_s: FULL_RETRY_AFTER_S,
+        });
+    };
     let sub = state.hub.subscribe(key).map_err(ApiError::BadRequest)?;
     let min_interval = max_hz.map(|hz| Duration::from_secs_f64(1.0 / hz));
     Ok(ws
@@ -73,18 +93,20 @@ pub async fn stream(
         .read_buffer_size(CLIENT_READ_BUFFER)
         .on_upgrade(move |socket| {
             let clients = state.ws_clients.clone();
-            clients.track_future(client_loop(socket, sub, min_interval, state))
+            clients.track_future(client_loop(socket, sub, min_interval, state, slot))
         }))
 }
 
 /// One client's loop: send each new set (at most every `min_interval`), ping, answer close,
-/// close cleanly on shutdown.
+/// close cleanly on shutdown. It holds the client's `slot` until it ends, however it ends.
 async fn client_loop(
     socket: WebSocket,
     mut sub: Subscription,
     min_interval: Option<Duration>,
     state: AppState,
+    slot: OwnedSemaphorePermit,
 ) {
+    let _slot = slot;
     let metrics = state.hub.metrics.clone();
     let _connected = ConnectedClient::count(&metrics);
     let (tx, mut rx) = socket.split();
