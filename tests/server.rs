@@ -738,6 +738,21 @@ async fn browsers_get_cors_headers_and_the_stream_takes_a_query_token() {
             .unwrap()
             .contains("POST")
     );
+    // The default count's first set may come a moment after the stream's (the pipeline
+    // publishes the counts of a frame one after another).
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while c
+        .get(url("/v1/lights/latest"))
+        .bearer_auth("s3cret")
+        .send()
+        .await
+        .unwrap()
+        .status()
+        != 200
+    {
+        assert!(Instant::now() < deadline, "no default set in 5 s");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
     // The answers, a refusal included, name the page's origin.
     for token in ["s3cret", "wrong"] {
         let r = c
