@@ -11,9 +11,10 @@
 //! daemon, the broker and this process (/proc). It ends with the LightSet's size at 8–256 lights,
 //! the figures docs/SCALING.md multiplies out.
 //!
-//! Knobs: `VEMLIGHT_FANOUT_SUBSCRIBERS=0,100,1000,5000` (0: the daemon and broker alone), `VEMLIGHT_FANOUT_SECONDS=10`,
-//! `VEMLIGHT_FANOUT_WARMUP=3`. Without nats-server (on PATH or in /usr/sbin) only the WebSocket
-//! cases run.
+//! Knobs: `VEMLIGHT_FANOUT_SUBSCRIBERS=0,100,1000,5000` (0: the daemon and broker alone),
+//! `VEMLIGHT_FANOUT_SECONDS=10`, `VEMLIGHT_FANOUT_WARMUP=3`, `VEMLIGHT_FANOUT_MAX_PENDING=1048576`
+//! (the broker's per-client backlog in bytes). Without nats-server (on PATH or in /usr/sbin) only
+//! the WebSocket cases run.
 
 use anyhow::{Context, bail};
 use futures_util::StreamExt;
@@ -36,10 +37,10 @@ const LIGHTS: usize = 64;
 const FPS: f64 = 30.0;
 /// Connections being opened at once while a case sets up.
 const CONNECTING: usize = 100;
-/// Bytes the broker holds for one subscriber before cutting it off as a slow consumer: about
-/// three seconds of 64-light sets at 30/s. A latest-state viewer further behind than that is
-/// better reconnected than fed a backlog (and 5 000 × nats-server's 64 MiB default would not fit
-/// in this machine's memory).
+/// Bytes the broker holds for one subscriber before cutting it off as a slow consumer, unless
+/// `VEMLIGHT_FANOUT_MAX_PENDING` says otherwise: about three seconds of 64-light sets at 30/s. A
+/// latest-state viewer further behind than that is better reconnected than fed a backlog (and
+/// 5 000 × nats-server's 64 MiB default would not fit in this machine's memory).
 const BROKER_MAX_PENDING: u64 = 1024 * 1024;
 const BROKER_WRITE_DEADLINE: &str = "2s";
 
@@ -87,16 +88,18 @@ struct Broker {
 }
 
 impl Broker {
-    fn start(bin: &PathBuf) -> anyhow::Result<Broker> {
+    fn start(bin: &std::path::Path, max_pending: u64) -> anyhow::Result<Broker> {
         let dir = std::env::temp_dir().join(format!("vemlight-fanout-{}", std::process::id()));
         std::fs::create_dir_all(&dir)?;
         let (port, http_port) = (free_port()?, free_port()?);
         let conf = dir.join("nats.conf");
+        // The server refuses a largest message above the per-client backlog.
+        let max_payload = max_pending.min(1024 * 1024);
         std::fs::write(
             &conf,
             format!(
                 "listen: 127.0.0.1:{port}\nhttp: 127.0.0.1:{http_port}\n\
-                 write_deadline: \"{BROKER_WRITE_DEADLINE}\"\nmax_pending: {BROKER_MAX_PENDING}\n\
+                 write_deadline: \"{BROKER_WRITE_DEADLINE}\"\nmax_pending: {max_pending}\nmax_payload: {max_payload}\n\
                  max_connections: 100000\n\
                  jetstream {{\n  store_dir: \"{}\"\n  max_memory_store: 268435456\n  max_file_store: 67108864\n}}\n",
                 dir.join("js").display()
@@ -773,6 +776,7 @@ fn main() -> anyhow::Result<()> {
         .collect();
     let window = Duration::from_secs_f64(env_or("VEMLIGHT_FANOUT_SECONDS", 10.0));
     let warmup = Duration::from_secs_f64(env_or("VEMLIGHT_FANOUT_WARMUP", 3.0));
+    let max_pending = env_or("VEMLIGHT_FANOUT_MAX_PENDING", BROKER_MAX_PENDING);
     let nofile = raise_open_files()?;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     println!(
@@ -786,7 +790,7 @@ fn main() -> anyhow::Result<()> {
 
     let server = nats_server();
     let broker = match &server {
-        Some(bin) => Some(Broker::start(bin)?),
+        Some(bin) => Some(Broker::start(bin, max_pending)?),
         None => {
             println!(
                 "nats-server not found on PATH or in /usr/sbin: only the daemon's WebSocket runs"
@@ -808,7 +812,7 @@ fn main() -> anyhow::Result<()> {
         broker
             .as_ref()
             .map(|b| format!(
-                ", nats-server {} (max_pending {BROKER_MAX_PENDING} B, write_deadline {BROKER_WRITE_DEADLINE})",
+                ", nats-server {} (max_pending {max_pending} B, write_deadline {BROKER_WRITE_DEADLINE})",
                 open_files_limit(b.proc.0.id())
             ))
             .unwrap_or_default(),
