@@ -376,19 +376,19 @@ impl Tally {
 }
 
 #[derive(Clone, Copy, PartialEq)]
-enum Path {
+enum Via {
     Broker,
     WebSocket,
 }
 
-impl Path {
+impl Via {
     fn name(self, subscribers: usize) -> &'static str {
         if subscribers == 0 {
             return "no subscribers";
         }
         match self {
-            Path::Broker => "nats-server",
-            Path::WebSocket => "daemon WebSocket",
+            Via::Broker => "nats-server",
+            Via::WebSocket => "daemon WebSocket",
         }
     }
 }
@@ -446,7 +446,7 @@ async fn follow_ws(
 
 /// One case's figures.
 struct Row {
-    path: Path,
+    via: Via,
     subscribers: usize,
     connect_s: f64,
     window_s: f64,
@@ -486,7 +486,7 @@ struct Snapshot {
     ws_stalled: f64,
 }
 
-fn snapshot(daemon: &Daemon, broker: Option<&Broker>, path: Path) -> anyhow::Result<Snapshot> {
+fn snapshot(daemon: &Daemon, broker: Option<&Broker>, via: Via) -> anyhow::Result<Snapshot> {
     let metrics = daemon.metrics()?;
     let varz = broker.map(|b| b.varz()).transpose()?;
     let num = |k: &str| varz.as_ref().and_then(|v| v[k].as_f64()).unwrap_or(0.0);
@@ -497,9 +497,9 @@ fn snapshot(daemon: &Daemon, broker: Option<&Broker>, path: Path) -> anyhow::Res
         broker: broker.and_then(|b| cpu_seconds(b.proc.0.id())),
         own: cpu_seconds(std::process::id()),
         machine: machine_jiffies(),
-        out_bytes: match path {
-            Path::Broker => num("out_bytes"),
-            Path::WebSocket => metric_sum(&metrics, "vemlight_ws_bytes_sent_total"),
+        out_bytes: match via {
+            Via::Broker => num("out_bytes"),
+            Via::WebSocket => metric_sum(&metrics, "vemlight_ws_bytes_sent_total"),
         },
         slow_consumers: num("slow_consumers"),
         publish_dropped: metric_sum(&metrics, "vemlight_nats_dropped_total"),
@@ -508,7 +508,7 @@ fn snapshot(daemon: &Daemon, broker: Option<&Broker>, path: Path) -> anyhow::Res
 }
 
 async fn run_case(
-    path: Path,
+    via: Via,
     subscribers: usize,
     daemon: &Daemon,
     broker: Option<&Broker>,
@@ -532,8 +532,8 @@ async fn run_case(
         let ws_url = format!("ws://{}/v1/stream?lights={LIGHTS}", daemon.addr);
         connecting.spawn(async move {
             let _permit = gate.acquire_owned().await?;
-            anyhow::Ok(match path {
-                Path::Broker => {
+            anyhow::Ok(match via {
+                Via::Broker => {
                     let url = nats_url.context("no broker")?;
                     let client = async_nats::ConnectOptions::new()
                         // A few seconds of sets; beyond, the client drops and counts them.
@@ -558,7 +558,7 @@ async fn run_case(
                     client.flush().await?;
                     tokio::spawn(follow_nats(client, sub, recording, stop))
                 }
-                Path::WebSocket => {
+                Via::WebSocket => {
                     // tungstenite's 128 KiB default read buffer, zeroed on every poll, would
                     // cost these clients more than the daemon (see benches/serve.rs).
                     let config = WebSocketConfig::default().read_buffer_size(16 * 1024);
@@ -581,11 +581,11 @@ async fn run_case(
     tokio::time::sleep(warmup).await;
 
     let (d, b) = (daemon, broker);
-    let before = tokio::task::block_in_place(|| snapshot(d, b, path))?;
+    let before = tokio::task::block_in_place(|| snapshot(d, b, via))?;
     recording.store(true, Relaxed);
     tokio::time::sleep(window).await;
     recording.store(false, Relaxed);
-    let after = tokio::task::block_in_place(|| snapshot(d, b, path))?;
+    let after = tokio::task::block_in_place(|| snapshot(d, b, via))?;
     stop.cancel();
     let mut tallies = Vec::with_capacity(subscribers);
     for f in followers {
@@ -620,21 +620,21 @@ async fn run_case(
             .max(0.0)
     });
     let ended = tallies.iter().filter(|t| t.lost).count();
-    let lost = match path {
-        Path::Broker => format!(
+    let lost = match via {
+        Via::Broker => format!(
             "{} slow consumers, {} reconnects, {} client drops, {} publisher drops",
             after.slow_consumers - before.slow_consumers,
             events.disconnected.load(Relaxed),
             events.slow.load(Relaxed),
             after.publish_dropped - before.publish_dropped,
         ),
-        Path::WebSocket => format!(
+        Via::WebSocket => format!(
             "{ended} closed, {} stalled",
             after.ws_stalled - before.ws_stalled
         ),
     };
     Ok(Row {
-        path,
+        via,
         subscribers,
         connect_s,
         window_s,
@@ -649,9 +649,9 @@ async fn run_case(
         p50_ms: percentile(&lat, 0.5),
         p99_ms: percentile(&lat, 0.99),
         daemon_cpu,
-        broker_cpu: match path {
-            Path::Broker => broker_cpu,
-            Path::WebSocket => None,
+        broker_cpu: match via {
+            Via::Broker => broker_cpu,
+            Via::WebSocket => None,
         },
         own_cpu,
         others_cpu,
@@ -673,7 +673,7 @@ fn print_table(rows: &[Row]) {
     for r in rows {
         println!(
             "| {} | {} | {:.1} | {:.1} ({:.1}) | {:.1} % of {} | {:.1} | {:.1} | {} | {} | {} | {} | {} | {:.1} | {} |",
-            r.path.name(r.subscribers),
+            r.via.name(r.subscribers),
             r.subscribers,
             r.connect_s,
             r.mean_rate,
@@ -825,17 +825,17 @@ fn main() -> anyhow::Result<()> {
         // The pipeline and the publisher settle, and the daemon's CPU alone is measured.
         tokio::time::sleep(warmup).await;
         let mut rows = Vec::new();
-        let paths: Vec<Path> = if broker.is_some() {
-            vec![Path::Broker, Path::WebSocket]
+        let paths: Vec<Via> = if broker.is_some() {
+            vec![Via::Broker, Via::WebSocket]
         } else {
-            vec![Path::WebSocket]
+            vec![Via::WebSocket]
         };
         for &s in &counts {
             // With no subscribers both paths are the same: the daemon and broker alone.
             let paths = if s == 0 { &paths[..1] } else { &paths[..] };
-            for &path in paths {
-                eprintln!("fan-out: {} × {s} …", path.name(s));
-                let row = run_case(path, s, &daemon, broker.as_ref(), warmup, window).await?;
+            for &via in paths {
+                eprintln!("fan-out: {} × {s} …", via.name(s));
+                let row = run_case(via, s, &daemon, broker.as_ref(), warmup, window).await?;
                 eprintln!(
                     "  {:.1} sets/s per subscriber, p99 {:.1} ms, daemon {} CPU s/s",
                     row.mean_rate,
