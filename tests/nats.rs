@@ -509,3 +509,88 @@ async fn credentials_come_from_the_environment_and_a_refused_login_leaves_the_da
     assert!(why.contains("authorization"), "{h}");
     assert!(!by_vars.metrics().await.contains("s3cret"));
 }
+
+/// A TCP proxy to `upstream` that passes what the client writes at `bytes_per_s` at most (and
+/// the other way at full speed): a broker link that takes sets slower than the daemon makes them.
+async fn throttling_proxy(upstream: u16, bytes_per_s: usize) -> u16 {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let port = listener.local_addr().unwrap().port();
+    tokio::spawn(async move {
+        while let Ok((client, _)) = listener.accept().await {
+            let Ok(server) = tokio::net::TcpStream::connect(("127.0.0.1", upstream)).await else {
+                continue;
+            };
+            let (mut cr, mut cw) = client.into_split();
+            let (mut sr, mut sw) = server.into_split();
+            tokio::spawn(async move {
+                let _ = tokio::io::copy(&mut sr, &mut cw).await;
+            });
+            tokio::spawn(async move {
+                let mut buf = vec![0u8; 4096];
+                loop {
+                    let n = match cr.read(&mut buf).await {
+                        Ok(0) | Err(_) => return,
+                        Ok(n) => n,
+                    };
+                    if sw.write_all(&buf[..n]).await.is_err() {
+                        return;
+                    }
+                    tokio::time::sleep(Duration::from_secs_f64(n as f64 / bytes_per_s as f64))
+                        .await;
+                }
+            });
+        }
+    });
+    port
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_broker_link_slower_than_the_sets_costs_dropped_sets_not_latency() {
+    let Some(broker) = broker_or_skip("slow broker link") else {
+        return;
+    };
+    // 64 lights at 30 sets/s is about 330 KB/s; the link passes 100 KB/s.
+    let port = throttling_proxy(broker.port, 100_000).await;
+    let url = format!("nats://127.0.0.1:{port}");
+    let d = Daemon::start_with_env(
+        &[
+            "--publish",
+            &url,
+            "--camera",
+            "mast",
+            "--lights",
+            "64",
+            "--fps",
+            "30",
+        ],
+        &[],
+    );
+    let nc = async_nats::connect(broker.url()).await.unwrap();
+    let mut sub = nc.subscribe("vemlight.v1.mast.lights.64").await.unwrap();
+    next_json(&mut sub, Duration::from_secs(20)).await;
+    let start = Instant::now();
+    let mut ages_s = Vec::new();
+    while start.elapsed() < Duration::from_secs(6) {
+        let doc = next_json(&mut sub, Duration::from_secs(3)).await;
+        let now = vemlight::lightset::now_ns();
+        ages_s.push((now - doc["t_capture_ns"].as_u64().unwrap()) as f64 * 1e-9);
+    }
+    let rate = ages_s.len() as f64 / start.elapsed().as_secs_f64();
+    let worst = ages_s.iter().copied().fold(0.0, f64::max);
+    let late: Vec<f64> = ages_s[ages_s.len() / 2..].to_vec();
+    let late_worst = late.iter().copied().fold(0.0, f64::max);
+    let text = d.metrics().await;
+    let superseded = metric(&text, "vemlight_nats_dropped_total{reason=\"superseded\"}");
+    eprintln!(
+        "slow link: {rate:.1} sets/s delivered, set age worst {worst:.2} s (second half {late_worst:.2} s), {superseded} superseded"
+    );
+    // Fewer sets get through, the rest are superseded in the daemon's queue …
+    assert!(rate < 20.0, "{rate} sets/s through a 100 KB/s link");
+    assert!(superseded > 30.0, "{superseded} superseded");
+    // … and what arrives stays fresh: no backlog builds up between the daemon and the broker.
+    assert!(
+        late_worst < 0.6,
+        "sets {late_worst:.2} s old at the end: a backlog is building"
+    );
+}

@@ -124,6 +124,10 @@ pub struct PublishArgs {
     /// A file holding the broker's token.
     #[arg(long, env = "VEMLIGHT_NATS_TOKEN_FILE", value_name = "FILE")]
     pub nats_token_file: Option<std::path::PathBuf>,
+    /// Replicas of the camera's JetStream last-value stream: 1 on a single broker, 3 on a
+    /// cluster (docs/SCALING.md). The daemon sets it on every connection.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=5))]
+    pub nats_replicas: u8,
 }
 
 /// Most light counts published to a broker: each takes one of the hub's
@@ -211,6 +215,7 @@ impl PublishArgs {
             counts,
             auth,
             http: None,
+            replicas: self.nats_replicas as usize,
         }))
     }
 }

@@ -77,6 +77,9 @@ pub struct PublishConfig {
     pub auth: NatsAuth,
     /// The daemon's own HTTP address, told in the status (a viewer may fall back to it).
     pub http: Option<String>,
+    /// Replicas of the camera's JetStream stream (1 on a single broker; 3 on a cluster, so that
+    /// the last values survive a node).
+    pub replicas: usize,
 }
 
 /// The broker link's state, as `/healthz` reports it.
@@ -95,6 +98,8 @@ pub enum LinkState {
 enum Dropped {
     /// The queue was full; its oldest set went.
     QueueFull,
+    /// A newer message of the same subject came before it went out (the broker is behind).
+    Superseded,
     /// The broker was not connected.
     Disconnected,
     /// The broker did not take it within [`PUBLISH_TIMEOUT`] (or the client refused it).
@@ -109,6 +114,7 @@ pub struct Link {
     inner: Mutex<LinkInner>,
     published: AtomicU64,
     dropped_queue_full: AtomicU64,
+    dropped_superseded: AtomicU64,
     dropped_disconnected: AtomicU64,
     dropped_timeout: AtomicU64,
     /// Connections made (the first included), counted by the client's events.
@@ -156,6 +162,7 @@ impl Link {
             }),
             published: AtomicU64::new(0),
             dropped_queue_full: AtomicU64::new(0),
+            dropped_superseded: AtomicU64::new(0),
             dropped_disconnected: AtomicU64::new(0),
             dropped_timeout: AtomicU64::new(0),
             connects: AtomicU64::new(0),
@@ -169,6 +176,7 @@ impl Link {
     fn drop_one(&self, why: Dropped) {
         let counter = match why {
             Dropped::QueueFull => &self.dropped_queue_full,
+            Dropped::Superseded => &self.dropped_superseded,
             Dropped::Disconnected => &self.dropped_disconnected,
             Dropped::Timeout => &self.dropped_timeout,
         };
@@ -183,6 +191,7 @@ impl Link {
     /// Messages dropped, whatever the reason.
     pub fn dropped(&self) -> u64 {
         self.dropped_queue_full.load(Relaxed)
+            + self.dropped_superseded.load(Relaxed)
             + self.dropped_disconnected.load(Relaxed)
             + self.dropped_timeout.load(Relaxed)
     }
@@ -219,10 +228,12 @@ impl Link {
         let _ = writeln!(
             s,
             "# HELP vemlight_nats_dropped_total Messages not published: queue full (the publisher fell behind), \
-             disconnected (broker down), timeout (broker too slow).\n# TYPE vemlight_nats_dropped_total counter"
+             superseded (a newer one of the same subject came while the broker was behind), disconnected \
+             (broker down), timeout (broker too slow).\n# TYPE vemlight_nats_dropped_total counter"
         );
         for (reason, c) in [
             ("queue_full", &self.dropped_queue_full),
+            ("superseded", &self.dropped_superseded),
             ("disconnected", &self.dropped_disconnected),
             ("timeout", &self.dropped_timeout),
         ] {
@@ -251,7 +262,9 @@ struct Outgoing {
     payload: Bytes,
 }
 
-/// The bounded, drop-oldest queue between the hub's watchers and the publisher.
+/// The bounded, drop-oldest queue between the hub's watchers and the publisher. Latest state per
+/// subject: a message replaces a waiting one of its subject, so a broker that is behind gets the
+/// newest set of each count, not a backlog.
 struct Queue {
     items: Mutex<VecDeque<Outgoing>>,
     ready: Notify,
@@ -262,6 +275,13 @@ impl Queue {
     fn push(&self, link: &Link, m: Outgoing) {
         {
             let mut q = self.items.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(waiting) = q.iter_mut().find(|w| w.subject == m.subject) {
+                *waiting = m;
+                link.drop_one(Dropped::Superseded);
+                drop(q);
+                self.ready.notify_one();
+                return;
+            }
             if q.len() >= self.capacity {
                 q.pop_front();
                 link.drop_one(Dropped::QueueFull);
@@ -371,7 +391,7 @@ pub async fn start(cfg: PublishConfig, hub: Arc<Hub>) -> anyhow::Result<Arc<Link
     ));
     tokio::spawn(keep_stream(
         client.clone(),
-        cfg.camera.clone(),
+        stream_config(&cfg.camera, cfg.replicas),
         link.clone(),
         stop.clone(),
     ));
@@ -559,7 +579,7 @@ async fn publish_status(hub: Arc<Hub>, cfg: PublishConfig, queue: Arc<Queue>, li
 
 /// The JetStream stream of one camera: memory, one message per subject (the last value), old
 /// ones discarded, direct gets allowed (a viewer reads the last value from any replica).
-pub fn stream_config(camera: &str) -> async_nats::jetstream::stream::Config {
+pub fn stream_config(camera: &str, replicas: usize) -> async_nats::jetstream::stream::Config {
     use async_nats::jetstream::stream::{Config, DiscardPolicy, StorageType};
     Config {
         name: subjects::stream_name(camera),
@@ -571,7 +591,7 @@ pub fn stream_config(camera: &str) -> async_nats::jetstream::stream::Config {
         max_messages_per_subject: 1,
         discard: DiscardPolicy::Old,
         allow_direct: true,
-        num_replicas: 1,
+        num_replicas: replicas.max(1),
         ..Default::default()
     }
 }
@@ -582,13 +602,14 @@ pub fn stream_config(camera: &str) -> async_nats::jetstream::stream::Config {
 /// `/healthz` and tried again every few seconds; sets are published all the same.
 async fn keep_stream(
     client: async_nats::Client,
-    camera: String,
+    config: async_nats::jetstream::stream::Config,
     link: Arc<Link>,
     stop: CancellationToken,
 ) {
     const RETRY: Duration = Duration::from_secs(3);
     let js = async_nats::jetstream::new(client);
-    let name = subjects::stream_name(&camera);
+    let name = config.name.clone();
+    let replicas = config.num_replicas;
     let mut made_on: Option<u64> = None;
     let mut last_try: Option<Instant> = None;
     loop {
@@ -604,7 +625,7 @@ async fn keep_stream(
         last_try = Some(Instant::now());
         let made = tokio::time::timeout(
             Duration::from_secs(5),
-            js.create_or_update_stream(stream_config(&camera)),
+            js.create_or_update_stream(config.clone()),
         )
         .await;
         let mut inner = link.inner();
@@ -613,7 +634,7 @@ async fn keep_stream(
                 made_on = Some(connects);
                 if inner.stream.is_none() {
                     tracing::info!(
-                        "JetStream stream {name} keeps the last value of each subject (memory, one message per subject)"
+                        "JetStream stream {name} keeps the last value of each subject (memory, one message per subject, {replicas} replica(s))"
                     );
                 }
                 inner.stream = Some(name.clone());
@@ -634,7 +655,20 @@ async fn keep_stream(
     }
 }
 
-/// Publishes what the queue holds, dropping what cannot go out now.
+/// Messages published and not yet acknowledged by the broker, at most. Each set goes out as a
+/// JetStream publish, whose acknowledgement comes back once the broker has read it (and stored
+/// it as the subject's last value). A broker that reads slowly — thousands of subscribers on too
+/// few cores, say — then holds at most this many of the daemon's messages, not the megabytes a
+/// socket's send buffer takes, and the queue keeps only the newest set of each count meanwhile.
+/// Measured: with plain publishes, such a broker left seconds of sets queued in the daemon's
+/// socket, each delivered late (docs/PERFORMANCE.md, "Fan-out").
+pub const ACK_WINDOW: usize = 4;
+
+/// How long an acknowledgement may take before the message counts as lost (`timeout`).
+pub const ACK_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// Publishes what the queue holds, at most [`ACK_WINDOW`] messages ahead of the broker, dropping
+/// what cannot go out now.
 async fn publisher(
     client: async_nats::Client,
     queue: Arc<Queue>,
@@ -642,22 +676,39 @@ async fn publisher(
     stop: CancellationToken,
 ) {
     use async_nats::connection::State;
+    use async_nats::jetstream::context::PublishErrorKind;
+    use futures_util::StreamExt;
+    use futures_util::stream::FuturesUnordered;
+    let mut js = async_nats::jetstream::new(client.clone());
+    js.set_timeout(ACK_TIMEOUT);
+    let mut in_flight = FuturesUnordered::new();
     loop {
-        while let Some(m) = queue.pop() {
+        while in_flight.len() < ACK_WINDOW {
+            let Some(m) = queue.pop() else { break };
             if client.connection_state() != State::Connected {
                 link.drop_one(Dropped::Disconnected);
                 continue;
             }
-            match tokio::time::timeout(PUBLISH_TIMEOUT, client.publish(m.subject, m.payload)).await
-            {
-                Ok(Ok(())) => {
-                    link.published.fetch_add(1, Relaxed);
-                }
+            match tokio::time::timeout(PUBLISH_TIMEOUT, js.publish(m.subject, m.payload)).await {
+                Ok(Ok(ack)) => in_flight.push(std::future::IntoFuture::into_future(ack)),
                 _ => link.drop_one(Dropped::Timeout),
             }
         }
         tokio::select! {
-            () = queue.ready.notified() => {}
+            Some(ack) = in_flight.next(), if !in_flight.is_empty() => match ack {
+                // No stream takes the subject (a broker without JetStream, or before the stream
+                // is made): the broker answered "no responders", so it has read the message and
+                // passed it to the subscribers.
+                Ok(_) => { link.published.fetch_add(1, Relaxed); }
+                Err(e) if e.kind() == PublishErrorKind::StreamNotFound => {
+                    link.published.fetch_add(1, Relaxed);
+                }
+                Err(e) if e.kind() == PublishErrorKind::BrokenPipe => {
+                    link.drop_one(Dropped::Disconnected);
+                }
+                Err(_) => link.drop_one(Dropped::Timeout),
+            },
+            () = queue.ready.notified(), if in_flight.len() < ACK_WINDOW => {}
             () = stop.cancelled() => break,
         }
     }
@@ -705,32 +756,43 @@ mod tests {
     }
 
     #[test]
-    fn queue_drops_its_oldest() {
+    fn the_queue_keeps_the_newest_of_each_subject_and_drops_its_oldest() {
         let link = Link::new(&PublishConfig {
             url: "nats://x:1".into(),
             camera: "c".into(),
             counts: vec![8],
             auth: NatsAuth::None,
             http: None,
+            replicas: 1,
         });
         let q = Queue {
             items: Mutex::new(VecDeque::new()),
             ready: Notify::new(),
             capacity: 3,
         };
-        for k in 0..5u8 {
+        let push = |subject: &str, k: u8| {
             q.push(
                 &link,
                 Outgoing {
-                    subject: "s".into(),
+                    subject: subject.into(),
                     payload: Bytes::from(vec![k]),
                 },
-            );
+            )
+        };
+        for k in 0..5u8 {
+            push(&format!("s{k}"), k);
         }
-        assert_eq!(link.dropped(), 2);
-        let left: Vec<u8> = std::iter::from_fn(|| q.pop())
-            .map(|m| m.payload[0])
+        assert_eq!(link.dropped_queue_full.load(Relaxed), 2);
+        // A newer set of a waiting subject takes its place.
+        push("s3", 30);
+        assert_eq!(link.dropped_superseded.load(Relaxed), 1);
+        assert_eq!(link.dropped(), 3);
+        let left: Vec<(String, u8)> = std::iter::from_fn(|| q.pop())
+            .map(|m| (m.subject, m.payload[0]))
             .collect();
-        assert_eq!(left, [2, 3, 4]);
+        assert_eq!(
+            left,
+            [("s2".into(), 2), ("s3".into(), 30), ("s4".into(), 4)]
+        );
     }
 }
