@@ -4,6 +4,7 @@
 
 mod args;
 pub mod bench;
+pub mod cameras;
 pub mod eval;
 pub mod healthcheck;
 pub mod lights;
@@ -30,6 +31,8 @@ pub enum Command {
     Lights(lights::LightsArgs),
     /// The capture daemon: frames → filtered lights → WebSocket stream and HTTP endpoints.
     Serve(Box<serve::ServeArgs>),
+    /// The cameras publishing on a NATS broker (`serve --publish`): name, health, light counts.
+    Cameras(cameras::CamerasArgs),
     /// Exits 0 when a daemon answers `GET /healthz` with 200 (for container health checks).
     Healthcheck(healthcheck::HealthcheckArgs),
     /// Per-frame extraction speed of every method (single thread, decoding excluded), as medians
@@ -51,6 +54,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Serve(args) => serve::run(*args),
+        Command::Cameras(args) => cameras::run(&args),
         Command::Healthcheck(args) => healthcheck::run(&args.addr),
         #[cfg(feature = "render")]
         Command::View(args) => crate::render::view::run(args),

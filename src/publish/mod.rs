@@ -15,6 +15,7 @@
 //! set supersedes it. The client reconnects with backoff and the stream is made again after each
 //! reconnect (a broker restarted with a memory store has lost it).
 
+pub mod cameras;
 pub mod subjects;
 
 use crate::daemon::{Hub, StreamKey, Subscription};

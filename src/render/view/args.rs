@@ -3,20 +3,34 @@
 //!
 //! Input: the command line. Output: [`ViewArgs`], which every mode (headless, window, bench) reads.
 
+use super::nats::NatsOptions;
 use super::source::{DEFAULT_STREAM, LightFeed, Source};
+use crate::publish::cameras::{LISTEN, LoginArgs};
 use crate::render::gpu::parse_backends;
 use crate::render::renderer::Options;
 use crate::render::scene::{Camera, Mesh, Scene};
 use crate::render::shadow::shadow_size_for;
 use std::path::PathBuf;
+use std::time::Duration;
 
 /// `vemlight view [SOURCE]`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct ViewArgs {
     /// Where the lights come from: a `ws://host:port/v1/stream?lights=N` URL (the daemon's stream),
-    /// a LightSet .json file, or an .exr/.hdr environment map (lights extracted here).
+    /// a `nats://host:port/CAMERA?lights=N` URL (a camera through a NATS broker; without CAMERA
+    /// the only one publishing, without lights= its first count), a LightSet .json file, or an
+    /// .exr/.hdr environment map (lights extracted here).
     #[arg(default_value = DEFAULT_STREAM)]
     pub source: String,
+    /// With a nats:// source that names no camera: the camera to follow.
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// With a nats:// source: drop sets captured longer ago than this (by this machine's clock;
+    /// 0 = no check). A camera slower than one set a second needs more.
+    #[arg(long, default_value_t = 1000, value_name = "MS")]
+    pub max_age_ms: u64,
+    #[command(flatten)]
+    pub login: LoginArgs,
     /// Render without a window and write PNGs to --out.
     #[arg(long)]
     pub headless: bool,
@@ -64,7 +78,8 @@ pub struct ViewArgs {
     pub target_fps: Option<f32>,
     /// Shadow budget: only K lights get shadow maps (the K most worth one, marked as the
     /// daemon's `shadowed=K` marks them), the rest are drawn unoccluded. A stream is asked for
-    /// `shadowed=K` (unless its URL has it); a file's or a map's lights are marked here.
+    /// `shadowed=K` (unless its URL has it); a file's, a map's or a broker's lights are marked
+    /// here.
     #[arg(long, value_name = "K")]
     pub shadowed: Option<usize>,
     /// Side of each shadow map, texels (default: the largest power of two not above the frame's
@@ -144,7 +159,30 @@ impl ViewArgs {
 
     /// Opens SOURCE with the shadow budget.
     pub(super) fn feed(&self) -> anyhow::Result<LightFeed> {
-        LightFeed::open_with_budget(&Source::parse(&self.source), self.lights, self.shadowed)
+        let source = Source::parse(&self.source);
+        let Source::Nats(url) = &source else {
+            if self.camera.is_some() {
+                anyhow::bail!("--camera is for a nats:// source");
+            }
+            return LightFeed::open_with_budget(&source, self.lights, self.shadowed);
+        };
+        let opts = NatsOptions {
+            camera: self.camera.clone(),
+            max_age: (self.max_age_ms > 0).then(|| Duration::from_millis(self.max_age_ms)),
+            auth: self.login.auth()?,
+            listen: LISTEN,
+        };
+        let feed = LightFeed::open_nats(url, opts, self.shadowed)?;
+        if let LightFeed::Nats { feed, .. } = &feed {
+            eprintln!(
+                "vemlight view: camera {}, {} lights, on {} ({})",
+                feed.camera(),
+                feed.lights(),
+                feed.server(),
+                feed.subject()
+            );
+        }
+        Ok(feed)
     }
 
     /// The showcase scene around `--mesh` (or the built-in bunny).

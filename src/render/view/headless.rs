@@ -31,6 +31,9 @@ pub(super) fn run(args: &ViewArgs) -> anyhow::Result<()> {
         if let Some(set) = feed.poll() {
             lights.set(&mut renderer, &set.lights);
         }
+        if let Some(line) = feed.drop_report() {
+            eprintln!("vemlight view: {line}");
+        }
         let t = if args.orbit != 0.0 {
             frame as f32 / 30.0 // orbiting headless frames are spaced as at 30 frames/s
         } else {

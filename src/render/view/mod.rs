@@ -11,6 +11,7 @@ pub mod adaptive;
 mod args;
 mod bench;
 mod headless;
+pub mod nats;
 pub mod source;
 mod window;
 

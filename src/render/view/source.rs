@@ -1,5 +1,5 @@
 //! Where the viewer's lights come from: a LightSet JSON file, an environment map (lights extracted
-//! in-process), or the daemon's WebSocket stream.
+//! in-process), the daemon's WebSocket stream, or a camera through a NATS broker ([`super::nats`]).
 //!
 //! Input: the `SOURCE` argument of `vemlight view`. Output: [`LightSet`]s through [`LightFeed::poll`].
 //! The stream runs a blocking `tungstenite` client on a background thread with latest-state
@@ -8,6 +8,7 @@
 //! reconnects with exponential backoff. The wire format (the document, its subprotocol) comes from
 //! [`crate::lightset`]; the client imports nothing of the server (DESIGN.md, "The wire format").
 
+use super::nats::{NatsFeed, NatsOptions};
 use crate::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
 use crate::lights::Extractor;
 use crate::lightset::{LightRequest, LightSet, SUBPROTOCOL, lightset_for_map};
@@ -32,12 +33,17 @@ pub enum Source {
     LightSetFile(PathBuf),
     /// An environment map (`.exr`, `.hdr`): lights extracted here with `lightset_for_map`.
     Map(PathBuf),
+    /// `nats://host:port[/camera][?lights=N]` (or `tls://`): a camera's sets through a broker,
+    /// the URL checked when the feed opens.
+    Nats(String),
 }
 
 impl Source {
     pub fn parse(s: &str) -> Source {
         if s.starts_with("ws://") || s.starts_with("wss://") {
             Source::Stream(s.to_owned())
+        } else if s.starts_with("nats://") || s.starts_with("tls://") {
+            Source::Nats(s.to_owned())
         } else if s.to_ascii_lowercase().ends_with(".json") {
             Source::LightSetFile(s.into())
         } else {
@@ -115,6 +121,12 @@ pub enum LightFeed {
     /// A set read once; `poll` hands it out the first time.
     Static(Option<Box<LightSet>>),
     Stream(StreamClient),
+    /// A camera through a broker; `budget`: the shadow budget K and the ids marked last, for the
+    /// sets that arrive without marks (the broker's, unless the daemon marks them).
+    Nats {
+        feed: NatsFeed,
+        budget: Option<(usize, Vec<u32>)>,
+    },
 }
 
 impl LightFeed {
@@ -125,7 +137,9 @@ impl LightFeed {
 
     /// [`open`](Self::open) with a shadow budget of `shadowed` lights (`vemlight view
     /// --shadowed K`): a stream is asked for `shadowed=K` (the daemon marks the lights); a file's
-    /// or a map's lights are marked here, the same way. Without it, a file's own marks are kept.
+    /// or a map's lights are marked here, the same way, and so are a broker's sets that come
+    /// without marks. Without it, a file's own marks are kept. A NATS source logs in as the
+    /// environment says ([`NatsOptions::from_env`]; [`open_nats`](Self::open_nats) for more).
     pub fn open_with_budget(
         source: &Source,
         lights: usize,
@@ -147,6 +161,20 @@ impl LightFeed {
                 };
                 LightFeed::Stream(StreamClient::start_with_budget(&url, shadowed)?)
             }
+            Source::Nats(url) => Self::open_nats(url, NatsOptions::from_env()?, shadowed)?,
+        })
+    }
+
+    /// A camera through a broker ([`NatsFeed::start`]), its sets marked here for a shadow budget
+    /// of `shadowed` lights when they come without marks.
+    pub fn open_nats(
+        url: &str,
+        opts: NatsOptions,
+        shadowed: Option<usize>,
+    ) -> anyhow::Result<LightFeed> {
+        Ok(LightFeed::Nats {
+            feed: NatsFeed::start(url, opts)?,
+            budget: shadowed.map(|k| (k, Vec::new())),
         })
     }
 
@@ -155,6 +183,15 @@ impl LightFeed {
         match self {
             LightFeed::Static(set) => set.take().map(|s| *s),
             LightFeed::Stream(client) => client.take_latest(),
+            LightFeed::Nats { feed, budget } => {
+                let mut set = feed.take_latest()?;
+                if let Some((k, marked)) = budget
+                    && set.lights.iter().all(|l| l.shadowed.is_none())
+                {
+                    *marked = mark_shadow_budget(&mut set, *k, marked);
+                }
+                Some(set)
+            }
         }
     }
 
@@ -163,6 +200,16 @@ impl LightFeed {
         match self {
             LightFeed::Static(_) => false,
             LightFeed::Stream(client) => !client.is_connected(),
+            LightFeed::Nats { feed, .. } => feed.is_stale(),
+        }
+    }
+
+    /// A line for the log when a broker's sets were dropped (too old, or not newer) since the
+    /// last report.
+    pub fn drop_report(&self) -> Option<String> {
+        match self {
+            LightFeed::Nats { feed, .. } => feed.drop_report(),
+            _ => None,
         }
     }
 
@@ -176,6 +223,7 @@ impl LightFeed {
             if start.elapsed() > timeout {
                 let why = match self {
                     LightFeed::Stream(c) => c.last_error(),
+                    LightFeed::Nats { feed, .. } => feed.why_nothing(),
                     LightFeed::Static(_) => String::new(),
                 };
                 bail!("no LightSet received within {timeout:?} {why}");
@@ -417,6 +465,10 @@ mod tests {
         assert_eq!(
             Source::parse("ws://127.0.0.1:7878/v1/stream?lights=72"),
             Source::Stream("ws://127.0.0.1:7878/v1/stream?lights=72".into())
+        );
+        assert_eq!(
+            Source::parse("nats://127.0.0.1:4222/roof?lights=8"),
+            Source::Nats("nats://127.0.0.1:4222/roof?lights=8".into())
         );
         assert_eq!(
             Source::parse("a/b.JSON"),

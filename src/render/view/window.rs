@@ -124,6 +124,9 @@ impl App {
         if let Some(set) = self.feed.poll() {
             self.lights.set(&mut live.renderer, &set.lights);
         }
+        if let Some(line) = self.feed.drop_report() {
+            eprintln!("vemlight view: {line}");
+        }
         let texture = match live.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t)
             | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
