@@ -47,6 +47,10 @@ pub struct Settings {
     /// Largest message.
     pub max_payload: u64,
     pub jetstream: bool,
+    /// More config at the top level (users and their permissions, say).
+    pub extra: String,
+    /// More lines inside the `websocket {}` block (`allowed_origins`, say).
+    pub websocket: String,
 }
 
 impl Default for Settings {
@@ -56,6 +60,8 @@ impl Default for Settings {
             max_pending: 64 * 1024 * 1024,
             max_payload: 1024 * 1024,
             jetstream: true,
+            extra: String::new(),
+            websocket: String::new(),
         }
     }
 }
@@ -67,7 +73,8 @@ pub struct Broker {
     pub ws_port: u16,
     pub http_port: u16,
     dir: PathBuf,
-    settings: Settings,
+    /// What the next [`restart`](Broker::restart) writes into the config.
+    pub settings: Settings,
 }
 
 /// A port free now on 127.0.0.1.
@@ -112,14 +119,16 @@ impl Broker {
         };
         let text = format!(
             "listen: 127.0.0.1:{port}\nhttp: 127.0.0.1:{http}\nwrite_deadline: \"{wd}\"\nmax_pending: {mp}\nmax_payload: {pl}\n\
-             max_connections: 20000\n{jetstream}\
-             websocket {{\n  listen: \"127.0.0.1:{ws}\"\n  no_tls: true\n}}\n",
+             max_connections: 20000\n{jetstream}{extra}\n\
+             websocket {{\n  listen: \"127.0.0.1:{ws}\"\n  no_tls: true\n{ws_extra}\n}}\n",
             port = self.port,
             http = self.http_port,
             ws = self.ws_port,
             wd = self.settings.write_deadline,
             mp = self.settings.max_pending,
             pl = self.settings.max_payload,
+            extra = self.settings.extra,
+            ws_extra = self.settings.websocket,
         );
         std::fs::File::create(&conf)
             .unwrap()
