@@ -42,18 +42,19 @@ const ASSETS: [(&str, &str, &str); 4] = [
     ),
 ];
 
-const NO_CACHE: &str = "no-cache";
-const FOREVER: &str = "public, max-age=31536000, immutable";
+pub(super) const NO_CACHE: &str = "no-cache";
+pub(super) const FOREVER: &str = "public, max-age=31536000, immutable";
 
 /// `GET /demo`.
 pub async fn page() -> Response {
     respond("text/html; charset=utf-8", NO_CACHE, PAGE)
 }
 
-/// The query of `/demo/{file}`: only three.js's `?v=` matters.
+/// The query of `/demo/{file}` and `/vendor/{file}`: only `?v=`, a vendored library's version,
+/// matters.
 #[derive(Debug, Deserialize)]
 pub struct AssetQuery {
-    v: Option<String>,
+    pub(super) v: Option<String>,
 }
 
 /// `GET /demo/{file}`: one of [`ASSETS`], or 404.
@@ -70,7 +71,11 @@ pub async fn asset(Path(file): Path<String>, Query(q): Query<AssetQuery>) -> Res
     respond(content_type, cache, body)
 }
 
-fn respond(content_type: &'static str, cache: &'static str, body: &'static str) -> Response {
+pub(super) fn respond(
+    content_type: &'static str,
+    cache: &'static str,
+    body: &'static str,
+) -> Response {
     (
         [
             (header::CONTENT_TYPE, HeaderValue::from_static(content_type)),

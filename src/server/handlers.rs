@@ -1,13 +1,15 @@
-//! The small handlers: `GET /` (the live view), `GET /healthz`, `GET /metrics` and
-//! `GET /v1/lights/latest` (DESIGN.md "Processes and endpoints").
+//! The small handlers: `GET /` (the live view) and the NATS client its broker mode loads
+//! (`GET /vendor/{file}`), `GET /healthz`, `GET /metrics` and `GET /v1/lights/latest` (DESIGN.md
+//! "Processes and endpoints").
 
+use super::demo;
 use super::error::ApiError;
 use super::query::{LatestQuery, Params};
 use super::state::AppState;
 use crate::daemon::hub::{Interest, SubscribeError};
 use crate::daemon::{SourceState, StreamKey};
 use crate::metrics::Metrics;
-use axum::extract::State;
+use axum::extract::{Path, Query, State};
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use std::time::Duration;
@@ -26,6 +28,43 @@ pub(super) async fn viewer() -> Response {
         include_str!("viewer.html"),
     )
         .into_response()
+}
+
+/// The vendored NATS client's version (clients/nats/vendor/VERSION): the `?v=` of its cacheable
+/// URL, which the live view names.
+pub const NATS_CLIENT_VERSION: &str = include_str!("../../clients/nats/vendor/VERSION");
+
+/// The files under `/vendor/`: the NATS JavaScript client as one ES module (clients/nats/vendor.sh)
+/// and the licences of what it bundles. Embedded, so the broker mode needs no CDN.
+const VENDOR: [(&str, &str, &str); 2] = [
+    (
+        "nats-core.min.js",
+        "text/javascript; charset=utf-8",
+        include_str!("../../clients/nats/vendor/nats-core.min.js"),
+    ),
+    (
+        "NATS-LICENSE.txt",
+        "text/plain; charset=utf-8",
+        include_str!("../../clients/nats/vendor/LICENSE"),
+    ),
+];
+
+/// `GET /vendor/{file}`: one of [`VENDOR`], or 404. Static, so no token. The client asked for under
+/// its version never changes under that URL and is cached for good.
+pub(super) async fn vendor(
+    Path(file): Path<String>,
+    Query(q): Query<demo::AssetQuery>,
+) -> Response {
+    let Some(&(_, content_type, body)) = VENDOR.iter().find(|(name, _, _)| *name == file) else {
+        return StatusCode::NOT_FOUND.into_response();
+    };
+    let versioned = q.v.as_deref() == Some(NATS_CLIENT_VERSION.trim());
+    let cache = if file == "nats-core.min.js" && versioned {
+        demo::FOREVER
+    } else {
+        demo::NO_CACHE
+    };
+    demo::respond(content_type, cache, body)
 }
 
 /// `GET /healthz`: 200 while the daemon can serve a light set (status "degraded" when the source
@@ -162,4 +201,70 @@ pub(super) fn json_response(body: impl Into<axum::body::Body>) -> Response {
         body,
     )
         .into_response()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const PAGE: &str = include_str!("viewer.html");
+
+    /// The live view loads the vendored client under the version that makes it cacheable, and
+    /// the vendored files are the version package.json pins.
+    #[test]
+    fn the_live_view_names_the_vendored_nats_client() {
+        let version = NATS_CLIENT_VERSION.trim();
+        assert!(
+            PAGE.contains(&format!("\"/vendor/nats-core.min.js?v={version}\"")),
+            "viewer.html must load /vendor/nats-core.min.js?v={version} (clients/nats/vendor/VERSION)"
+        );
+        let package: serde_json::Value =
+            serde_json::from_str(include_str!("../../clients/nats/package.json")).unwrap();
+        assert_eq!(
+            package["devDependencies"]["@nats-io/nats-core"], version,
+            "package.json pins another NATS client than vendor/ holds: run clients/nats/vendor.sh"
+        );
+        assert!(
+            VENDOR[0].2.contains("wsconnect"),
+            "the bundle exports wsconnect"
+        );
+        for pkg in [
+            "@nats-io/nats-core",
+            "@nats-io/nkeys",
+            "@nats-io/nuid",
+            "tweetnacl",
+        ] {
+            assert!(VENDOR[1].2.contains(pkg), "the licence file lacks {pkg}");
+        }
+    }
+
+    #[tokio::test]
+    async fn vendored_files_have_their_types_and_cache_headers() {
+        let get = |file: &str, v: Option<&str>| {
+            vendor(
+                Path(file.to_string()),
+                Query(demo::AssetQuery {
+                    v: v.map(Into::into),
+                }),
+            )
+        };
+        let header = |r: &Response, h| r.headers()[h].to_str().unwrap().to_string();
+        let client = get("nats-core.min.js", Some(NATS_CLIENT_VERSION.trim())).await;
+        assert_eq!(client.status(), StatusCode::OK);
+        assert_eq!(
+            header(&client, header::CONTENT_TYPE),
+            "text/javascript; charset=utf-8"
+        );
+        assert_eq!(header(&client, header::CACHE_CONTROL), demo::FOREVER);
+        let stale = get("nats-core.min.js", Some("0.0.1")).await;
+        assert_eq!(header(&stale, header::CACHE_CONTROL), demo::NO_CACHE);
+        let licence = get("NATS-LICENSE.txt", None).await;
+        assert_eq!(
+            header(&licence, header::CONTENT_TYPE),
+            "text/plain; charset=utf-8"
+        );
+        for missing in ["../Cargo.toml", "three.module.min.js", "VERSION"] {
+            assert_eq!(get(missing, None).await.status(), StatusCode::NOT_FOUND);
+        }
+    }
 }

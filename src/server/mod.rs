@@ -45,6 +45,7 @@ pub fn app(state: AppState) -> Router {
         .route("/", get(handlers::viewer))
         .route("/demo", get(demo::page))
         .route("/demo/{file}", get(demo::asset))
+        .route("/vendor/{file}", get(handlers::vendor))
         .route("/healthz", get(handlers::healthz))
         .merge(protected)
         // Uploads are limited by `Uploads::max_body`, checked in the handler.

@@ -53,8 +53,10 @@ pub struct Settings {
     /// Largest message.
     pub max_payload: u64,
     pub jetstream: bool,
-    /// More configuration, appended as is (an `authorization {}` block, say).
+    /// More config at the top level (users and their permissions, say).
     pub extra: String,
+    /// More lines inside the `websocket {}` block (`allowed_origins`, say).
+    pub websocket: String,
 }
 
 impl Default for Settings {
@@ -65,6 +67,7 @@ impl Default for Settings {
             max_payload: 1024 * 1024,
             jetstream: true,
             extra: String::new(),
+            websocket: String::new(),
         }
     }
 }
@@ -76,7 +79,8 @@ pub struct Broker {
     pub ws_port: u16,
     pub http_port: u16,
     dir: PathBuf,
-    settings: Settings,
+    /// What the next [`restart`](Broker::restart) writes into the config.
+    pub settings: Settings,
 }
 
 /// A port free now on 127.0.0.1.
@@ -121,8 +125,8 @@ impl Broker {
         };
         let text = format!(
             "listen: 127.0.0.1:{port}\nhttp: 127.0.0.1:{http}\nwrite_deadline: \"{wd}\"\nmax_pending: {mp}\nmax_payload: {pl}\n\
-             max_connections: 20000\n{jetstream}\
-             websocket {{\n  listen: \"127.0.0.1:{ws}\"\n  no_tls: true\n}}\n{extra}\n",
+             max_connections: 20000\n{jetstream}{extra}\n\
+             websocket {{\n  listen: \"127.0.0.1:{ws}\"\n  no_tls: true\n{ws_extra}\n}}\n",
             port = self.port,
             http = self.http_port,
             ws = self.ws_port,
@@ -130,6 +134,7 @@ impl Broker {
             mp = self.settings.max_pending,
             pl = self.settings.max_payload,
             extra = self.settings.extra,
+            ws_extra = self.settings.websocket,
         );
         std::fs::File::create(&conf)
             .unwrap()
