@@ -1,7 +1,8 @@
 //! `vemlight cameras nats://HOST:PORT`: the cameras publishing on a broker, from the statuses
 //! they send once a second (docs/RENDER.md, "Through a NATS broker"), as a table or JSON.
 
-use crate::publish::cameras::{self, BrokerUrl, LoginArgs};
+use crate::publish::cameras::{self, BrokerUrl};
+use crate::publish::login::LoginArgs;
 use anyhow::{Context, bail};
 use std::io::Write;
 

@@ -118,12 +118,9 @@ pub struct PublishArgs {
     /// --lights).
     #[arg(long, value_delimiter = ',', value_name = "N,N,…")]
     pub publish_lights: Vec<usize>,
-    /// A NATS credentials file (.creds: user JWT and NKey seed).
-    #[arg(long, env = "VEMLIGHT_NATS_CREDS", value_name = "FILE")]
-    pub nats_creds: Option<std::path::PathBuf>,
-    /// A file holding the broker's token.
-    #[arg(long, env = "VEMLIGHT_NATS_TOKEN_FILE", value_name = "FILE")]
-    pub nats_token_file: Option<std::path::PathBuf>,
+    /// How to log in to the broker.
+    #[command(flatten)]
+    pub login: crate::publish::login::LoginArgs,
     /// Replicas of the camera's JetStream last-value stream: 1 on a single broker, 3 on a
     /// cluster (docs/SCALING.md). The daemon sets it on every connection.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=5))]
@@ -141,7 +138,7 @@ impl PublishArgs {
         &self,
         default_lights: usize,
     ) -> anyhow::Result<Option<crate::publish::PublishConfig>> {
-        use crate::publish::{NatsAuth, PublishConfig, check_url, subjects};
+        use crate::publish::{PublishConfig, check_url, subjects};
         let Some(url) = self.publish.clone() else {
             return Ok(None);
         };
@@ -176,39 +173,7 @@ impl PublishArgs {
                 counts.len()
             );
         }
-        let env = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
-        let token_file = match &self.nats_token_file {
-            Some(path) => Some(
-                std::fs::read_to_string(path)
-                    .with_context(|| format!("--nats-token-file '{}'", path.display()))?
-                    .trim()
-                    .to_string(),
-            ),
-            None => None,
-        };
-        let auth = match (
-            &self.nats_creds,
-            token_file.or_else(|| env("VEMLIGHT_NATS_TOKEN")),
-            env("VEMLIGHT_NATS_USER"),
-        ) {
-            (Some(path), None, None) => NatsAuth::CredsFile(path.clone()),
-            (None, Some(token), None) => {
-                if token.is_empty() {
-                    bail!("the NATS token file is empty");
-                }
-                NatsAuth::Token(token)
-            }
-            (None, None, Some(user)) => {
-                let Some(password) = env("VEMLIGHT_NATS_PASSWORD") else {
-                    bail!("VEMLIGHT_NATS_USER is set without VEMLIGHT_NATS_PASSWORD");
-                };
-                NatsAuth::UserPassword(user, password)
-            }
-            (None, None, None) => NatsAuth::None,
-            _ => bail!(
-                "give one way to log in to the broker: --nats-creds, a token (--nats-token-file or                  VEMLIGHT_NATS_TOKEN), or VEMLIGHT_NATS_USER and VEMLIGHT_NATS_PASSWORD"
-            ),
-        };
+        let auth = self.login.auth()?;
         Ok(Some(PublishConfig {
             url,
             camera,

@@ -16,14 +16,16 @@
 //! reconnect (a broker restarted with a memory store has lost it).
 
 pub mod cameras;
+pub mod login;
 pub mod subjects;
+
+pub use login::NatsAuth;
 
 use crate::daemon::{Hub, StreamKey, Subscription};
 use crate::lightset::now_ns;
 use bytes::Bytes;
 use std::collections::VecDeque;
 use std::fmt::Write as _;
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -44,28 +46,6 @@ pub const QUEUE_CAPACITY: usize = 64;
 /// Messages the NATS client buffers while writing (its default, 2048, would hold a minute of
 /// stale sets for a slow broker).
 const CLIENT_CAPACITY: usize = 128;
-
-/// How the daemon logs in to the broker; never from the command line alone (docs/API.md).
-#[derive(Clone, Default)]
-pub enum NatsAuth {
-    #[default]
-    None,
-    Token(String),
-    UserPassword(String, String),
-    /// A NATS `.creds` file (a user JWT and its NKey seed).
-    CredsFile(PathBuf),
-}
-
-impl std::fmt::Debug for NatsAuth {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            NatsAuth::None => "none",
-            NatsAuth::Token(_) => "token",
-            NatsAuth::UserPassword(..) => "user and password",
-            NatsAuth::CredsFile(_) => "credentials file",
-        })
-    }
-}
 
 /// What `serve --publish` asks for.
 #[derive(Clone, Debug)]
@@ -413,16 +393,7 @@ pub async fn start(cfg: PublishConfig, hub: Arc<Hub>) -> anyhow::Result<Arc<Link
 async fn connect(cfg: &PublishConfig, link: Arc<Link>) -> anyhow::Result<async_nats::Client> {
     use anyhow::Context;
     let (url, auth) = split_credentials(&cfg.url, &cfg.auth)?;
-    let mut opts = match &auth {
-        NatsAuth::None => async_nats::ConnectOptions::new(),
-        NatsAuth::Token(t) => async_nats::ConnectOptions::with_token(t.clone()),
-        NatsAuth::UserPassword(u, p) => {
-            async_nats::ConnectOptions::with_user_and_password(u.clone(), p.clone())
-        }
-        NatsAuth::CredsFile(path) => async_nats::ConnectOptions::with_credentials_file(path)
-            .await
-            .with_context(|| format!("--nats-creds '{}'", path.display()))?,
-    };
+    let mut opts = login::connect_options(&auth).await?;
     opts = opts
         .name(format!("vemlight {}", cfg.camera))
         .retry_on_initial_connect()

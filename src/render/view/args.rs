@@ -5,7 +5,8 @@
 
 use super::nats::NatsOptions;
 use super::source::{DEFAULT_STREAM, LightFeed, Source};
-use crate::publish::cameras::{LISTEN, LoginArgs};
+use crate::publish::cameras::LISTEN;
+use crate::publish::login::LoginArgs;
 use crate::render::gpu::parse_backends;
 use crate::render::renderer::Options;
 use crate::render::scene::{Camera, Mesh, Scene};

@@ -61,7 +61,7 @@ impl NatsOptions {
         Ok(NatsOptions {
             camera: None,
             max_age: Some(DEFAULT_MAX_AGE),
-            auth: cameras::LoginArgs::default().auth()?,
+            auth: crate::publish::login::LoginArgs::default().auth()?,
             listen: cameras::LISTEN,
         })
     }
@@ -383,7 +383,7 @@ async fn connect(
     connected: &Arc<Notify>,
 ) -> anyhow::Result<async_nats::Client> {
     let (shared, connected) = (shared.clone(), connected.clone());
-    let opts = cameras::connect_options(auth)
+    let opts = crate::publish::login::connect_options(auth)
         .await?
         .name("vemlight view")
         .retry_on_initial_connect()
