@@ -400,9 +400,10 @@ struct ClientEvents {
     slow: AtomicU64,
 }
 
-async fn follow_nats(
-    client: async_nats::Client,
-    mut sub: async_nats::Subscriber,
+/// Tallies a subscriber's sets until `stop`: each item a set's payload, `Ok(None)` another
+/// frame, `Err` (or the end) the link lost.
+async fn follow<B: AsRef<[u8]>>(
+    mut sets: impl futures_util::Stream<Item = Result<Option<B>, ()>> + Unpin,
     recording: Arc<AtomicBool>,
     stop: CancellationToken,
 ) -> Tally {
@@ -411,32 +412,9 @@ async fn follow_nats(
         tokio::select! {
             biased;
             _ = stop.cancelled() => break,
-            m = sub.next() => match m {
-                Some(m) => t.note(&m.payload, &recording),
-                None => { t.lost = true; break }
-            }
-        }
-    }
-    drop(sub);
-    drop(client);
-    t
-}
-
-async fn follow_ws(
-    mut ws: tokio_tungstenite::WebSocketStream<
-        tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
-    >,
-    recording: Arc<AtomicBool>,
-    stop: CancellationToken,
-) -> Tally {
-    let mut t = Tally::default();
-    loop {
-        tokio::select! {
-            biased;
-            _ = stop.cancelled() => break,
-            m = ws.next() => match m {
-                Some(Ok(Message::Text(s))) => t.note(s.as_bytes(), &recording),
-                Some(Ok(_)) => {}
+            m = sets.next() => match m {
+                Some(Ok(Some(doc))) => t.note(doc.as_ref(), &recording),
+                Some(Ok(None)) => {}
                 _ => { t.lost = true; break }
             }
         }
@@ -556,7 +534,11 @@ async fn run_case(
                         .await?;
                     let sub = client.subscribe(subjects::lights(CAMERA, LIGHTS)).await?;
                     client.flush().await?;
-                    tokio::spawn(follow_nats(client, sub, recording, stop))
+                    tokio::spawn(async move {
+                        let t = follow(sub.map(|m| Ok(Some(m.payload))), recording, stop).await;
+                        drop(client);
+                        t
+                    })
                 }
                 Via::WebSocket => {
                     // tungstenite's 128 KiB default read buffer, zeroed on every poll, would
@@ -565,7 +547,12 @@ async fn run_case(
                     let (ws, _) =
                         tokio_tungstenite::connect_async_with_config(ws_url, Some(config), true)
                             .await?;
-                    tokio::spawn(follow_ws(ws, recording, stop))
+                    let sets = ws.map(|m| match m {
+                        Ok(Message::Text(s)) => Ok(Some(s)),
+                        Ok(_) => Ok(None),
+                        Err(_) => Err(()),
+                    });
+                    tokio::spawn(follow(sets, recording, stop))
                 }
             })
         });

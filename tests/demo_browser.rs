@@ -12,56 +12,23 @@
 
 mod common;
 
-use futures_util::{SinkExt, StreamExt};
+use common::{Killed, chromium};
 use glam::DVec3;
 use serde_json::{Value, json};
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
-use tokio_tungstenite::tungstenite::Message;
 use vemlight::envmap::luminance64;
 use vemlight::lights::sh;
 
-/// Kills the process when dropped (the daemon, the browser).
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn first_working(candidates: &[&'static str]) -> Option<&'static str> {
-    candidates.iter().copied().find(|b| {
-        Command::new(b)
-            .arg("--version")
-            .output()
-            .is_ok_and(|o| o.status.success())
-    })
-}
-
-/// Skips (returns false) when `what` is missing, unless CI requires the browser tests.
-fn available(tool: Option<&str>, what: &str) -> bool {
-    if tool.is_some() {
-        return true;
-    }
-    assert!(
-        std::env::var_os("VEMLIGHT_REQUIRE_BROWSER").is_none(),
-        "VEMLIGHT_REQUIRE_BROWSER is set but no {what} is installed"
-    );
-    eprintln!("skipped: no {what} on PATH (scripts/test.sh installs it)");
-    false
-}
-
 #[test]
 fn the_three_js_conversion_passes_its_node_tests() {
-    let node = first_working(&["node", "nodejs"]);
-    if !available(node, "node") {
+    let Some(node) = chromium::found_or_skip(chromium::first_working(&["node", "nodejs"]), "node")
+    else {
         return;
-    }
+    };
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("clients/three");
-    let out = Command::new(node.unwrap())
+    let out = Command::new(node)
         .current_dir(&dir)
         .args([
             "--import",
@@ -78,90 +45,6 @@ fn the_three_js_conversion_passes_its_node_tests() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(text.contains("# fail 0"), "{text}");
-}
-
-/// A DevTools-protocol connection to one page (a flattened session of the browser socket).
-struct Cdp {
-    ws: tokio_tungstenite::WebSocketStream<
-        tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
-    >,
-    next_id: u64,
-    session: Option<String>,
-    events: Vec<Value>,
-}
-
-impl Cdp {
-    async fn call(&mut self, method: &str, params: Value) -> Value {
-        self.next_id += 1;
-        let id = self.next_id;
-        let mut msg = json!({ "id": id, "method": method, "params": params });
-        if let Some(s) = &self.session {
-            msg["sessionId"] = json!(s);
-        }
-        self.ws
-            .send(Message::text(msg.to_string()))
-            .await
-            .expect("send to chromium");
-        loop {
-            let reply = tokio::time::timeout(Duration::from_secs(30), self.ws.next())
-                .await
-                .unwrap_or_else(|_| panic!("chromium did not answer {method}"))
-                .expect("chromium closed the DevTools socket")
-                .expect("DevTools socket");
-            let Message::Text(text) = reply else { continue };
-            let v: Value = serde_json::from_str(&text).expect("DevTools JSON");
-            if v["id"] == id {
-                assert!(v["error"].is_null(), "{method} failed: {v}");
-                return v["result"].clone();
-            }
-            if v["method"].is_string() {
-                self.events.push(v);
-            }
-        }
-    }
-
-    /// Evaluates `expr` in the page (awaiting a promise) and returns its value, which the
-    /// expression gives as a JSON string.
-    async fn eval(&mut self, expr: &str) -> Value {
-        let r = self
-            .call(
-                "Runtime.evaluate",
-                json!({ "expression": expr, "awaitPromise": true, "returnByValue": true }),
-            )
-            .await;
-        assert!(
-            r["exceptionDetails"].is_null(),
-            "{expr} threw: {}",
-            r["exceptionDetails"]
-        );
-        match r["result"]["value"].as_str() {
-            Some(s) => serde_json::from_str(s).expect("the page answers JSON"),
-            None => Value::Null,
-        }
-    }
-
-    async fn state(&mut self) -> Value {
-        self.eval("JSON.stringify(window.vemlightDemo ? vemlightDemo.state() : null)")
-            .await
-    }
-
-    /// Waits until `ok(state)`, polling; panics with the last state after `limit`.
-    async fn wait_for(
-        &mut self,
-        what: &str,
-        limit: Duration,
-        ok: impl Fn(&Value) -> bool,
-    ) -> Value {
-        let start = Instant::now();
-        loop {
-            let s = self.state().await;
-            if ok(&s) {
-                return s;
-            }
-            assert!(start.elapsed() < limit, "timed out waiting for {what}: {s}");
-            tokio::time::sleep(Duration::from_millis(200)).await;
-        }
-    }
 }
 
 fn luminance(rgb: &Value) -> f64 {
@@ -295,10 +178,9 @@ fn check_shadows(m: &Value, when: &str) -> usize {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_demo_page_draws_the_live_lights_with_shadows() {
-    let browser = first_working(&["chromium", "chromium-browser", "google-chrome"]);
-    if !available(browser, "chromium") {
+    let Some(browser) = chromium::browser_or_skip() else {
         return;
-    }
+    };
     let test_start = Instant::now();
     // A fast sun (6°/s: a 30 s day from sunrise at the daemon's start), no clouds, no lamp.
     let (child, addr) = common::spawn_serve(&[
@@ -341,56 +223,19 @@ async fn the_demo_page_draws_the_live_lights_with_shadows() {
 
     let profile =
         std::env::temp_dir().join(format!("vemlight-demo-chromium-{}", std::process::id()));
-    let mut chrome = Command::new(browser.unwrap())
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--no-first-run",
+    let (_chrome, mut cdp) = chromium::launch(
+        browser,
+        &profile,
+        &[
             "--use-angle=swiftshader",
             "--enable-unsafe-swiftshader",
             "--window-size=800,600",
-            "--remote-debugging-port=0",
-            &format!("--user-data-dir={}", profile.display()),
-            "about:blank",
-        ])
-        .stderr(Stdio::piped())
-        .stdout(Stdio::null())
-        .spawn()
-        .expect("runs chromium");
-    let stderr = chrome.stderr.take().unwrap();
-    let _chrome = Killed(chrome);
-    let rx = common::stderr_lines(stderr);
-    let devtools = loop {
-        let line = rx
-            .recv_timeout(Duration::from_secs(20))
-            .expect("chromium prints its DevTools address");
-        if let Some(url) = line.strip_prefix("DevTools listening on ") {
-            break url.trim().to_string();
-        }
-    };
-    let (ws, _) = tokio_tungstenite::connect_async(devtools.as_str())
-        .await
-        .expect("DevTools socket");
-    let mut cdp = Cdp {
-        ws,
-        next_id: 0,
-        session: None,
-        events: Vec::new(),
-    };
-    let target = cdp
-        .call("Target.createTarget", json!({ "url": "about:blank" }))
-        .await;
-    let session = cdp
-        .call(
-            "Target.attachToTarget",
-            json!({ "targetId": target["targetId"], "flatten": true }),
-        )
-        .await;
-    cdp.session = Some(session["sessionId"].as_str().unwrap().to_string());
-    cdp.call("Runtime.enable", json!({})).await;
-    cdp.call("Log.enable", json!({})).await;
+        ],
+        "JSON.stringify(window.vemlightDemo ? vemlightDemo.state() : null)",
+    )
+    .await;
     let url = format!("http://{addr}/demo?access_token=t0k&lights=16&shadowed=4&tonemap=linear");
-    cdp.call("Page.navigate", json!({ "url": url })).await;
+    cdp.open(&url).await;
 
     // Frames drawn with the stream's lights, K = 4 of them shadowed.
     let s = cdp
@@ -592,23 +437,10 @@ async fn the_demo_page_draws_the_live_lights_with_shadows() {
     // No errors: none the page caught, no exception, no console.error, no error log entry but
     // (with a daemon that predates `shadowed`) the refused handshake the client falls back from.
     assert_eq!(s["errors"], json!([]), "the page logged errors: {s}");
-    let problems: Vec<&Value> = cdp
-        .events
-        .iter()
-        .filter(|e| match e["method"].as_str() {
-            Some("Runtime.exceptionThrown") => true,
-            Some("Runtime.consoleAPICalled") => {
-                matches!(e["params"]["type"].as_str(), Some("error" | "assert"))
-            }
-            Some("Log.entryAdded") => {
-                let entry = &e["params"]["entry"];
-                let text = entry["text"].as_str().unwrap_or("");
-                entry["level"] == "error"
-                    && !(wire == "legacy" && text.contains("WebSocket") && text.contains("400"))
-            }
-            _ => false,
-        })
-        .collect();
+    let problems = cdp.problems(|entry| {
+        let text = entry["text"].as_str().unwrap_or("");
+        wire == "legacy" && text.contains("WebSocket") && text.contains("400")
+    });
     assert!(problems.is_empty(), "the page logged errors: {problems:#?}");
     let _ = std::fs::remove_dir_all(&profile);
     eprintln!("demo test took {:.1} s", test_start.elapsed().as_secs_f64());

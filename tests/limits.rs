@@ -5,14 +5,13 @@
 
 mod common;
 
+use common::{Ws, get_json, status_line, stream_request};
 use futures_util::{SinkExt, StreamExt};
 use std::net::SocketAddr;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
-use tokio_tungstenite::tungstenite::client::IntoClientRequest;
-use tokio_tungstenite::tungstenite::http::HeaderValue;
 use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 use vemlight::capture::synthetic::SyntheticSource;
 use vemlight::capture::{FrameSource, SourceError};
@@ -76,34 +75,16 @@ async fn start(limits: Limits, gate: Option<mpsc::Receiver<()>>) -> SocketAddr {
     addr
 }
 
-type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<TcpStream>>;
-
 /// A WebSocket handshake for `/v1/stream{query}` with the vemlight subprotocol.
 async fn connect(addr: SocketAddr, query: &str) -> Result<Ws, WsError> {
-    let mut req = format!("ws://{addr}/v1/stream{query}")
-        .into_client_request()
-        .unwrap();
-    req.headers_mut().insert(
-        "Sec-WebSocket-Protocol",
-        HeaderValue::from_static("vemlight.v1"),
-    );
-    tokio_tungstenite::connect_async(req)
+    tokio_tungstenite::connect_async(stream_request(addr, query))
         .await
         .map(|(ws, _)| ws)
 }
 
 /// The next LightSet from a stream, within 5 s.
 async fn next_set(ws: &mut Ws) -> serde_json::Value {
-    loop {
-        let msg = tokio::time::timeout(Duration::from_secs(5), ws.next())
-            .await
-            .expect("a set in time")
-            .expect("stream open")
-            .expect("no ws error");
-        if let Message::Text(t) = msg {
-            return serde_json::from_str(t.as_str()).expect("JSON");
-        }
-    }
+    common::next_set(ws, Duration::from_secs(5)).await
 }
 
 /// A refused handshake's problem document, checked to be a 503 problem+json telling the client
@@ -124,10 +105,6 @@ fn refused_handshake(attempt: Result<Ws, WsError>) -> serde_json::Value {
     let doc: serde_json::Value = serde_json::from_slice(body).expect("a JSON body");
     assert_eq!(doc["status"], 503);
     doc
-}
-
-async fn get_json(c: &reqwest::Client, url: &str) -> serde_json::Value {
-    c.get(url).send().await.unwrap().json().await.unwrap()
 }
 
 /// The value of the metric line `name` in `GET /metrics`.
@@ -230,20 +207,6 @@ async fn the_client_cap_refuses_one_more_and_frees_a_slot_when_a_client_leaves()
         5
     );
     assert_eq!(metric(&c, addr, "vemlight_ws_clients").await, 3);
-}
-
-/// The first line of the answer on `tcp`, within `limit`.
-async fn status_line(tcp: &mut TcpStream, limit: Duration) -> String {
-    let mut reply = vec![0u8; 4096];
-    let n = tokio::time::timeout(limit, tcp.read(&mut reply))
-        .await
-        .expect("an answer in time")
-        .unwrap();
-    String::from_utf8_lossy(&reply[..n])
-        .lines()
-        .next()
-        .unwrap_or("")
-        .to_string()
 }
 
 /// With `--max-connections 3`, a WebSocket client and two idle sockets fill the cap: a further
@@ -377,37 +340,11 @@ fn serve_under_ulimit(
     args: &[&str],
     env: &[(&str, &str)],
 ) -> Result<(std::process::Child, SocketAddr), String> {
-    let mut child = std::process::Command::new("sh")
-        .arg("-c")
+    let mut sh = std::process::Command::new("sh");
+    sh.arg("-c")
         .arg(format!("ulimit -n {nofile} && exec \"$0\" \"$@\""))
-        .arg(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["serve", "--bind", "127.0.0.1:0", "--sky-size", "64x32"])
-        .args(args)
-        .envs(env.iter().copied())
-        .env("RUST_LOG", "info")
-        .env("NO_COLOR", "1")
-        .stdin(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let lines = common::stderr_lines(child.stderr.take().unwrap());
-    let mut log = String::new();
-    loop {
-        match lines.recv_timeout(Duration::from_secs(20)) {
-            Ok(line) => {
-                if let Some(rest) = line.split("serving on http://").nth(1) {
-                    let addr = rest.split_whitespace().next().unwrap().parse().unwrap();
-                    return Ok((child, addr));
-                }
-                log.push_str(&line);
-                log.push('\n');
-            }
-            Err(_) => {
-                let status = child.wait().unwrap();
-                return Err(format!("{status}: {log}"));
-            }
-        }
-    }
+        .arg(env!("CARGO_BIN_EXE_vemlight"));
+    common::try_spawn_serve(sh, &[&["--sky-size", "64x32"], args].concat(), env)
 }
 
 /// The binary's caps: by default from the descriptor limit (1024: 704 clients, 768

@@ -15,27 +15,17 @@
 
 mod common;
 
+use common::Killed;
 use common::broker::{Broker, Settings, free_port, nats_server};
-use futures_util::{SinkExt, StreamExt};
+use common::chromium;
+use futures_util::StreamExt;
 use serde_json::{Value, json};
 use std::net::SocketAddr;
-use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tokio_tungstenite::tungstenite::Message;
 
 const VIEWER_PASSWORD: &str = "viewer-pw-9f2";
 const TOKEN: &str = "broker-token-51c";
-
-/// Kills the process when dropped (a daemon, the browser).
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 /// The camera's password in the test broker's config.
 fn password(camera: &str) -> String {
@@ -81,29 +71,26 @@ fn documented_authorization(cameras: &[&str]) -> String {
 /// `vemlight serve` on `bind`, publishing as `camera` with that camera's login (from the
 /// environment, as docs/API.md says).
 fn spawn_camera(bind: &str, broker: &Broker, camera: &str) -> (Killed, SocketAddr) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["serve", "--bind", bind, "--sky-size", "256x128"])
-        .args(["--publish", &broker.url(), "--camera", camera])
-        .args(["--publish-lights", "8,16"])
-        .env("VEMLIGHT_NATS_USER", camera)
-        .env("VEMLIGHT_NATS_PASSWORD", password(camera))
-        .env("RUST_LOG", "info")
-        .env("NO_COLOR", "1")
-        .stdin(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("runs vemlight serve");
-    let rx = common::stderr_lines(child.stderr.take().unwrap());
-    let child = Killed(child);
-    let addr = loop {
-        let line = rx
-            .recv_timeout(Duration::from_secs(20))
-            .expect("a startup line");
-        if let Some(rest) = line.split("serving on http://").nth(1) {
-            break rest.split_whitespace().next().unwrap().parse().unwrap();
-        }
-    };
-    (child, addr)
+    let password = password(camera);
+    let (child, addr) = common::spawn_serve_with_env(
+        &[
+            "--bind",
+            bind,
+            "--sky-size",
+            "256x128",
+            "--publish",
+            &broker.url(),
+            "--camera",
+            camera,
+            "--publish-lights",
+            "8,16",
+        ],
+        &[
+            ("VEMLIGHT_NATS_USER", camera),
+            ("VEMLIGHT_NATS_PASSWORD", &password),
+        ],
+    );
+    (Killed(child), addr)
 }
 
 /// Waits until the daemon's broker link is up and its last-value stream made (which needs the
@@ -263,159 +250,6 @@ async fn check_permissions(broker: &Broker) {
     assert!(seen > 5, "the subscriptions went quiet ({seen} messages)");
 }
 
-/// A DevTools-protocol connection to one page (a flattened session of the browser socket).
-struct Cdp {
-    ws: tokio_tungstenite::WebSocketStream<
-        tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
-    >,
-    next_id: u64,
-    session: Option<String>,
-    events: Vec<Value>,
-}
-
-impl Cdp {
-    async fn call(&mut self, method: &str, params: Value) -> Value {
-        self.next_id += 1;
-        let id = self.next_id;
-        let mut msg = json!({ "id": id, "method": method, "params": params });
-        if let Some(s) = &self.session {
-            msg["sessionId"] = json!(s);
-        }
-        self.ws
-            .send(Message::text(msg.to_string()))
-            .await
-            .expect("send to chromium");
-        loop {
-            let reply = tokio::time::timeout(Duration::from_secs(30), self.ws.next())
-                .await
-                .unwrap_or_else(|_| panic!("chromium did not answer {method}"))
-                .expect("chromium closed the DevTools socket")
-                .expect("DevTools socket");
-            let Message::Text(text) = reply else { continue };
-            let v: Value = serde_json::from_str(&text).expect("DevTools JSON");
-            if v["id"] == id {
-                assert!(v["error"].is_null(), "{method} failed: {v}");
-                return v["result"].clone();
-            }
-            if v["method"].is_string() {
-                self.events.push(v);
-            }
-        }
-    }
-
-    /// Evaluates `expr` in the page; the expression gives its value as a JSON string.
-    async fn eval(&mut self, expr: &str) -> Value {
-        let r = self
-            .call(
-                "Runtime.evaluate",
-                json!({ "expression": expr, "awaitPromise": true, "returnByValue": true }),
-            )
-            .await;
-        assert!(
-            r["exceptionDetails"].is_null(),
-            "{expr} threw: {}",
-            r["exceptionDetails"]
-        );
-        match r["result"]["value"].as_str() {
-            Some(s) => serde_json::from_str(s).expect("the page answers JSON"),
-            None => Value::Null,
-        }
-    }
-
-    async fn state(&mut self) -> Value {
-        self.eval("JSON.stringify(window.vemlightView ? vemlightView.state() : null)")
-            .await
-    }
-
-    /// Waits until `ok(state)`, polling; panics with the last state after `limit`.
-    async fn wait_for(
-        &mut self,
-        what: &str,
-        limit: Duration,
-        ok: impl Fn(&Value) -> bool,
-    ) -> Value {
-        let start = Instant::now();
-        loop {
-            let s = self.state().await;
-            if ok(&s) {
-                return s;
-            }
-            assert!(start.elapsed() < limit, "timed out waiting for {what}: {s}");
-            tokio::time::sleep(Duration::from_millis(200)).await;
-        }
-    }
-
-    async fn open(&mut self, url: &str) {
-        self.call("Page.navigate", json!({ "url": url })).await;
-    }
-
-    /// Errors the page reported: exceptions, console errors, error log entries.
-    fn problems(&self) -> Vec<&Value> {
-        self.events
-            .iter()
-            .filter(|e| match e["method"].as_str() {
-                Some("Runtime.exceptionThrown") => true,
-                Some("Runtime.consoleAPICalled") => {
-                    matches!(e["params"]["type"].as_str(), Some("error" | "assert"))
-                }
-                Some("Log.entryAdded") => e["params"]["entry"]["level"] == "error",
-                _ => false,
-            })
-            .collect()
-    }
-}
-
-/// Headless Chromium with one page attached.
-async fn chromium(browser: &str, profile: &std::path::Path) -> (Killed, Cdp) {
-    let mut chrome = Command::new(browser)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--no-first-run",
-            "--window-size=1200,900",
-            "--remote-debugging-port=0",
-            &format!("--user-data-dir={}", profile.display()),
-            "about:blank",
-        ])
-        .stderr(Stdio::piped())
-        .stdout(Stdio::null())
-        .spawn()
-        .expect("runs chromium");
-    let rx = common::stderr_lines(chrome.stderr.take().unwrap());
-    let chrome = Killed(chrome);
-    let devtools = loop {
-        let line = rx
-            .recv_timeout(Duration::from_secs(20))
-            .expect("chromium prints its DevTools address");
-        if let Some(url) = line.strip_prefix("DevTools listening on ") {
-            break url.trim().to_string();
-        }
-    };
-    let (ws, _) = tokio_tungstenite::connect_async(devtools.as_str())
-        .await
-        .expect("DevTools socket");
-    let mut cdp = Cdp {
-        ws,
-        next_id: 0,
-        session: None,
-        events: Vec::new(),
-    };
-    let target = cdp
-        .call("Target.createTarget", json!({ "url": "about:blank" }))
-        .await;
-    let session = cdp
-        .call(
-            "Target.attachToTarget",
-            json!({ "targetId": target["targetId"], "flatten": true }),
-        )
-        .await;
-    cdp.session = Some(session["sessionId"].as_str().unwrap().to_string());
-    cdp.call("Runtime.enable", json!({})).await;
-    cdp.call("Log.enable", json!({})).await;
-    (chrome, cdp)
-}
-
 /// The pixels under each drawn light's centre, and how many pixels are lit, read in one go (so no
 /// redraw comes between): the centre from DESIGN.md's lat-long mapping, worked out here rather than
 /// by the page's own function.
@@ -446,20 +280,7 @@ fn seqs(state: &Value, camera: &str) -> Vec<u64> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_live_view_follows_a_camera_through_the_broker() {
-    let Some(browser) = ["chromium", "chromium-browser", "google-chrome"]
-        .into_iter()
-        .find(|b| {
-            Command::new(b)
-                .arg("--version")
-                .output()
-                .is_ok_and(|o| o.status.success())
-        })
-    else {
-        assert!(
-            std::env::var_os("VEMLIGHT_REQUIRE_BROWSER").is_none(),
-            "VEMLIGHT_REQUIRE_BROWSER is set but no chromium is installed"
-        );
-        eprintln!("skipped: no chromium on PATH (scripts/test.sh installs it)");
+    let Some(browser) = chromium::browser_or_skip() else {
         return;
     };
     if nats_server().is_none() {
@@ -486,7 +307,13 @@ async fn the_live_view_follows_a_camera_through_the_broker() {
 
     let profile =
         std::env::temp_dir().join(format!("vemlight-nats-chromium-{}", std::process::id()));
-    let (_chrome, mut cdp) = chromium(browser, &profile).await;
+    let (_chrome, mut cdp) = chromium::launch(
+        browser,
+        &profile,
+        &["--disable-gpu", "--window-size=1200,900"],
+        "JSON.stringify(window.vemlightView ? vemlightView.state() : null)",
+    )
+    .await;
     let ws = broker.ws_url();
     cdp.open(&format!(
         "http://{east}/?nats={ws}&lights=8&nats_user=viewer&nats_password={VIEWER_PASSWORD}"
@@ -641,7 +468,7 @@ async fn the_live_view_follows_a_camera_through_the_broker() {
 
     // No errors so far: none the page caught, no exception, no console or log error.
     assert_eq!(s["errors"], json!([]), "the page reported errors: {s}");
-    let problems = cdp.problems();
+    let problems = cdp.problems(|_| false);
     assert!(problems.is_empty(), "the page logged errors: {problems:#?}");
 
     // The light count is the page's choice: 16 from the select.

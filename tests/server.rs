@@ -3,7 +3,10 @@
 
 mod common;
 
-use common::{assert_valid, data_path, lightset_validator, load, spawn_serve};
+use common::{
+    Ws, assert_valid, data_path, get_json, lightset_validator, load, next_set, spawn_serve,
+    status_line, stream_request,
+};
 use futures_util::StreamExt;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -157,11 +160,6 @@ async fn poll_health(
     health
 }
 
-/// `GET url` as a JSON document.
-async fn get_json(c: &reqwest::Client, url: &str) -> serde_json::Value {
-    c.get(url).send().await.unwrap().json().await.unwrap()
-}
-
 /// `GET {base}/metrics` as text.
 async fn metrics_text(c: &reqwest::Client, base: &str) -> String {
     c.get(format!("{base}/metrics"))
@@ -173,17 +171,8 @@ async fn metrics_text(c: &reqwest::Client, base: &str) -> String {
         .unwrap()
 }
 
-type Ws =
-    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
-
 async fn connect(addr: SocketAddr, query: &str, token: Option<&str>) -> Ws {
-    let mut req = format!("ws://{addr}/v1/stream{query}")
-        .into_client_request()
-        .unwrap();
-    req.headers_mut().insert(
-        "Sec-WebSocket-Protocol",
-        HeaderValue::from_static("vemlight.v1"),
-    );
+    let mut req = stream_request(addr, query);
     if let Some(t) = token {
         req.headers_mut().insert(
             "Authorization",
@@ -198,20 +187,6 @@ async fn connect(addr: SocketAddr, query: &str, token: Option<&str>) -> Ws {
         "vemlight.v1"
     );
     ws
-}
-
-/// The next LightSet from a stream, within `timeout`.
-async fn next_set(ws: &mut Ws, timeout: Duration) -> serde_json::Value {
-    loop {
-        let msg = tokio::time::timeout(timeout, ws.next())
-            .await
-            .expect("a message in time")
-            .expect("stream open")
-            .expect("no ws error");
-        if let Message::Text(t) = msg {
-            return serde_json::from_str(t.as_str()).expect("JSON");
-        }
-    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -889,21 +864,6 @@ async fn connections_that_never_finish_a_header_are_closed() {
             "{path}, half-closed: '{line}'"
         );
     }
-}
-
-/// The status line of the answer to a raw request on `tcp`, within `limit`.
-async fn status_line(tcp: &mut tokio::net::TcpStream, limit: Duration) -> String {
-    use tokio::io::AsyncReadExt;
-    let mut reply = vec![0u8; 4096];
-    let n = tokio::time::timeout(limit, tcp.read(&mut reply))
-        .await
-        .expect("an answer in time")
-        .unwrap();
-    String::from_utf8_lossy(&reply[..n])
-        .lines()
-        .next()
-        .unwrap_or("")
-        .to_string()
 }
 
 /// Uploads that stall are answered 408 once nothing has arrived for the idle timeout; uploads

@@ -8,41 +8,17 @@
 
 mod common;
 
-use std::process::{Child, Command};
+use common::{Killed, chromium};
+use std::process::Command;
 use std::time::{Duration, Instant};
-
-struct Daemon(Child);
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn chromium() -> Option<&'static str> {
-    ["chromium", "chromium-browser", "google-chrome"]
-        .into_iter()
-        .find(|b| {
-            Command::new(b)
-                .arg("--version")
-                .output()
-                .is_ok_and(|o| o.status.success())
-        })
-}
 
 #[test]
 fn the_live_view_shows_streamed_lights() {
-    let Some(browser) = chromium() else {
-        assert!(
-            std::env::var_os("VEMLIGHT_REQUIRE_BROWSER").is_none(),
-            "VEMLIGHT_REQUIRE_BROWSER is set but no chromium is installed"
-        );
-        eprintln!("skipped: no chromium on PATH (scripts/test.sh installs it)");
+    let Some(browser) = chromium::browser_or_skip() else {
         return;
     };
     let (child, addr) = common::spawn_serve(&["--sky-size", "256x128", "--token", "t0k"]);
-    let _daemon = Daemon(child);
+    let _daemon = Killed(child);
     // Wait for the first light set: `vemlight healthcheck` passes once /healthz says 200.
     let start = Instant::now();
     while !Command::new(env!("CARGO_BIN_EXE_vemlight"))
@@ -58,12 +34,9 @@ fn the_live_view_shows_streamed_lights() {
     }
     let profile = std::env::temp_dir().join(format!("vemlight-chromium-{}", std::process::id()));
     let out = Command::new(browser)
+        .args(chromium::headless_args(&profile))
         .args([
-            "--headless",
-            "--no-sandbox",
             "--disable-gpu",
-            "--no-first-run",
-            &format!("--user-data-dir={}", profile.display()),
             "--virtual-time-budget=5000",
             "--dump-dom",
             &format!("http://{addr}/?access_token=t0k"),

@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod broker;
+pub mod chromium;
 
 use std::path::PathBuf;
 use vemlight::envmap::{DEFAULT_MAX_PIXELS, EnvMap};
@@ -110,13 +111,32 @@ pub fn spawn_serve(args: &[&str]) -> (std::process::Child, std::net::SocketAddr)
     spawn_serve_with_env(args, &[])
 }
 
-/// [`spawn_serve`] with environment variables set for the daemon.
+/// [`spawn_serve`] with environment variables set for the daemon; a `--bind` in `args` replaces
+/// the default one.
 pub fn spawn_serve_with_env(
     args: &[&str],
     env: &[(&str, &str)],
 ) -> (std::process::Child, std::net::SocketAddr) {
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["serve", "--bind", "127.0.0.1:0"])
+    let vemlight = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"));
+    try_spawn_serve(vemlight, args, env)
+        .unwrap_or_else(|e| panic!("vemlight serve {args:?} did not start: {e}"))
+}
+
+/// [`spawn_serve_with_env`] run by `program` (the binary, or a wrapper that runs the binary with
+/// the arguments that follow): its exit status and log if it does not start.
+pub fn try_spawn_serve(
+    mut program: std::process::Command,
+    args: &[&str],
+    env: &[(&str, &str)],
+) -> Result<(std::process::Child, std::net::SocketAddr), String> {
+    let bind: &[&str] = if args.contains(&"--bind") {
+        &[]
+    } else {
+        &["--bind", "127.0.0.1:0"]
+    };
+    let mut child = program
+        .arg("serve")
+        .args(bind)
         .args(args)
         .envs(env.iter().copied())
         .env("RUST_LOG", "info")
@@ -125,17 +145,37 @@ pub fn spawn_serve_with_env(
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let rx = stderr_lines(stderr);
-    let addr = loop {
-        let line = rx
-            .recv_timeout(std::time::Duration::from_secs(20))
-            .expect("a startup line");
-        if let Some(rest) = line.split("serving on http://").nth(1) {
-            break rest.split_whitespace().next().unwrap().parse().unwrap();
+    let lines = stderr_lines(child.stderr.take().unwrap());
+    let addr = serving_address(&mut child, &lines)?;
+    Ok((child, addr))
+}
+
+/// The address a starting `vemlight serve` says it listens on, read from its log `lines`; or,
+/// if it exits first (or says nothing for 20 s, when it is killed), its exit status and log.
+pub fn serving_address(
+    child: &mut std::process::Child,
+    lines: &std::sync::mpsc::Receiver<String>,
+) -> Result<std::net::SocketAddr, String> {
+    use std::sync::mpsc::RecvTimeoutError;
+    let mut log = String::new();
+    loop {
+        match lines.recv_timeout(std::time::Duration::from_secs(20)) {
+            Ok(line) => {
+                if let Some(rest) = line.split("serving on http://").nth(1) {
+                    return Ok(rest.split_whitespace().next().unwrap().parse().unwrap());
+                }
+                log.push_str(&line);
+                log.push('\n');
+            }
+            Err(e) => {
+                if e == RecvTimeoutError::Timeout {
+                    let _ = child.kill();
+                }
+                let status = child.wait().unwrap();
+                return Err(format!("{status}: {log}"));
+            }
         }
-    };
-    (child, addr)
+    }
 }
 
 /// A child's standard error, line by line, read on a thread of its own (so the child never
@@ -152,4 +192,69 @@ pub fn stderr_lines(stderr: std::process::ChildStderr) -> std::sync::mpsc::Recei
         }
     });
     rx
+}
+
+/// A client of the daemon's `/v1/stream`.
+pub type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// A WebSocket handshake request for `/v1/stream{query}` with the vemlight subprotocol.
+pub fn stream_request(
+    addr: std::net::SocketAddr,
+    query: &str,
+) -> tokio_tungstenite::tungstenite::handshake::client::Request {
+    use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+    let mut req = format!("ws://{addr}/v1/stream{query}")
+        .into_client_request()
+        .unwrap();
+    req.headers_mut().insert(
+        "Sec-WebSocket-Protocol",
+        tokio_tungstenite::tungstenite::http::HeaderValue::from_static("vemlight.v1"),
+    );
+    req
+}
+
+/// The next LightSet from a stream, within `timeout`.
+pub async fn next_set(ws: &mut Ws, timeout: std::time::Duration) -> serde_json::Value {
+    use futures_util::StreamExt;
+    loop {
+        let msg = tokio::time::timeout(timeout, ws.next())
+            .await
+            .expect("a message in time")
+            .expect("stream open")
+            .expect("no ws error");
+        if let tokio_tungstenite::tungstenite::Message::Text(t) = msg {
+            return serde_json::from_str(t.as_str()).expect("JSON");
+        }
+    }
+}
+
+/// `GET url` as a JSON document.
+pub async fn get_json(c: &reqwest::Client, url: &str) -> serde_json::Value {
+    c.get(url).send().await.unwrap().json().await.unwrap()
+}
+
+/// The status line of the answer to a raw request on `tcp`, within `limit`.
+pub async fn status_line(tcp: &mut tokio::net::TcpStream, limit: std::time::Duration) -> String {
+    use tokio::io::AsyncReadExt;
+    let mut reply = vec![0u8; 4096];
+    let n = tokio::time::timeout(limit, tcp.read(&mut reply))
+        .await
+        .expect("an answer in time")
+        .unwrap();
+    String::from_utf8_lossy(&reply[..n])
+        .lines()
+        .next()
+        .unwrap_or("")
+        .to_string()
+}
+
+/// Kills the process when dropped (a daemon, a browser), so a failing test leaves none behind.
+pub struct Killed(pub std::process::Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
 }
