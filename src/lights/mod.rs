@@ -237,7 +237,7 @@ pub struct Extractor {
 }
 
 /// How far a light of the default method may move in one frame of video mode (ALGORITHMS.md
-/// §4.3; the measured choice is in docs/EVALUATION.md, "Light ids jumped").
+/// §4.3; the measured choice is in docs/EVALUATION.md, "Video mode still jumped").
 ///
 /// A light moves from last frame's direction toward its cell's new centroid by at most
 /// `max_step_deg`, and is reported where it stopped: when a dim light loses the edge of a compact
