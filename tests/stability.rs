@@ -183,8 +183,9 @@ fn default_method_tracks_the_sun_across_the_seam_and_the_zenith() {
 
 /// Under a slow yaw (0.25°/frame) of every map in tests/data, the default's raw flicker
 /// ratio stays within a bound and below median cut's, per map (not in the median), and no light
-/// id moves more than 15° in a frame (the video mode's worst over 96 frames in `vemlight eval`
-/// is 12°; warping the points afresh each frame, 20–60°).
+/// id moves more than 5° in a frame (video mode's step limit: 3° at most over 96 frames of every
+/// map in `vemlight eval`; 5.7° on interior.exr here without it; warping the points afresh each
+/// frame, 20–60°).
 #[test]
 fn default_flicker_is_bounded_on_every_map_under_slow_rotation() {
     use vemlight::eval::scenes::LatLongDirs;
@@ -218,7 +219,7 @@ fn default_flicker_is_bounded_on_every_map_under_slow_rotation() {
         ));
         assert!(v <= 1.15, "{name}: default raw flicker {v}");
         assert!(
-            jump <= 15.0,
+            jump <= 5.0,
             "{name}: a light id jumped {jump}° in one frame"
         );
         assert!(v < mc.max(1.05), "{name}: default {v} vs median cut {mc}");

@@ -60,17 +60,29 @@ pub struct TemporalRow {
     pub speed_p99_deg: f64,
     /// Largest per-id jump between consecutive frames, degrees.
     pub speed_max_deg: f64,
+    /// Where that jump was: the frame it ended on and the light id (none without lights).
+    pub speed_max_at: Option<(usize, u32)>,
     pub delay_nominal: f64,
     pub delay_measured: usize,
 }
 
-/// State of one (method, filter) variant while a sequence runs.
+/// State of one (variant, filter) pair while a sequence runs.
 struct Track {
-    method: Option<Method>,
+    /// Index into the variants; `None` for the SH line.
+    variant: Option<usize>,
     filter: Option<TemporalFilter>,
     series: Vec<Vec<f64>>,
     prev: Vec<Light>,
     speeds: Vec<f64>,
+    /// Largest jump so far: degrees, frame, id.
+    worst: Option<(f64, usize, u32)>,
+}
+
+/// One extractor to run over a sequence, named by `label` in the rows.
+pub struct Variant {
+    pub label: String,
+    pub method: Method,
+    pub extractor: Extractor,
 }
 
 /// Runs every method on the sequence at `n` lights; `with_fir` adds the filtered variants.
@@ -80,38 +92,58 @@ pub fn run_sequence(
     n: usize,
     domain: Domain,
     with_fir: bool,
+    tick: impl FnMut(),
+) -> Vec<TemporalRow> {
+    let variants = Method::STREAMING
+        .iter()
+        .map(|&method| {
+            // A sequence is a video: the default runs as the daemon runs it
+            // (`Extractor::set_video`).
+            let mut extractor = Extractor::new();
+            extractor.set_video(true);
+            Variant {
+                label: method.name().to_string(),
+                method,
+                extractor,
+            }
+        })
+        .collect();
+    run_variants(seq, n, domain, with_fir, variants, true, tick)
+}
+
+/// Runs each of `variants` (extractors set up by the caller) on the sequence at `n` lights;
+/// `with_fir` adds the filtered rows, `with_sh` the SH reference line.
+pub fn run_variants(
+    seq: &mut Sequence,
+    n: usize,
+    domain: Domain,
+    with_fir: bool,
+    mut variants: Vec<Variant>,
+    with_sh: bool,
     mut tick: impl FnMut(),
 ) -> Vec<TemporalRow> {
     let normals = fibonacci_sphere(TEMPORAL_NORMALS);
     let fir = FilterSpec::default();
     let mut tracks: Vec<Track> = Vec::new();
-    for method in Method::STREAMING {
+    let track = |variant, filter| Track {
+        variant,
+        filter,
+        series: Vec::new(),
+        prev: Vec::new(),
+        speeds: Vec::new(),
+        worst: None,
+    };
+    for v in 0..variants.len() {
         for filtered in [false, true] {
             if filtered && !with_fir {
                 continue;
             }
-            tracks.push(Track {
-                method: Some(method),
-                filter: filtered.then(|| TemporalFilter::new(&fir)),
-                series: Vec::new(),
-                prev: Vec::new(),
-                speeds: Vec::new(),
-            });
+            tracks.push(track(Some(v), filtered.then(|| TemporalFilter::new(&fir))));
         }
     }
-    // The SH reference line: no lights, no filter.
-    tracks.push(Track {
-        method: None,
-        filter: None,
-        series: Vec::new(),
-        prev: Vec::new(),
-        speeds: Vec::new(),
-    });
-    let mut extractors: Vec<Extractor> =
-        Method::STREAMING.iter().map(|_| Extractor::new()).collect();
-    // A sequence is a video: the default runs as the daemon runs it (`Extractor::set_video`).
-    for ex in &mut extractors {
-        ex.set_video(true);
+    if with_sh {
+        // The SH reference line: no lights, no filter.
+        tracks.push(track(None, None));
     }
     let mut resampler: Option<Resampler> = None;
     let mut truth_series = Vec::with_capacity(seq.frames);
@@ -119,21 +151,20 @@ pub fn run_sequence(
     for t in 0..seq.frames {
         let map = (seq.render)(t);
         truth_series.push(truth(&map, domain, &normals));
-        let outs: Vec<Vec<Light>> = Method::STREAMING
-            .iter()
-            .zip(&mut extractors)
-            .map(|(&method, ex)| {
+        let outs: Vec<Vec<Light>> = variants
+            .iter_mut()
+            .map(|v| {
                 let opts = ExtractOptions {
                     lights: n,
                     domain,
-                    method,
+                    method: v.method,
                     side: None,
                 };
-                ex.extract(&map, &opts).lights
+                v.extractor.extract(&map, &opts).lights
             })
             .collect();
         for tr in &mut tracks {
-            let Some(method) = tr.method else {
+            let Some(variant) = tr.variant else {
                 let r = resampler.get_or_insert_with(|| {
                     Resampler::new(map.projection, map.width, map.height, domain, None)
                 });
@@ -146,22 +177,20 @@ pub fn run_sequence(
                 );
                 continue;
             };
-            let raw = &outs[Method::STREAMING
-                .iter()
-                .position(|&m| m == method)
-                .expect("listed")];
+            let raw = &outs[variant];
             let lights = match &mut tr.filter {
                 Some(f) => f.filter(raw),
                 None => raw.clone(),
             };
             tr.series.push(irradiance_at(&lights, &normals));
             if tr.prev.len() == lights.len() {
-                tr.speeds.extend(
-                    tr.prev
-                        .iter()
-                        .zip(&lights)
-                        .map(|(a, b)| angle_deg(a.dir(), b.dir())),
-                );
+                for (a, b) in tr.prev.iter().zip(&lights) {
+                    let deg = angle_deg(a.dir(), b.dir());
+                    if tr.worst.is_none_or(|w| deg > w.0) {
+                        tr.worst = Some((deg, t, b.id));
+                    }
+                    tr.speeds.push(deg);
+                }
             }
             tr.prev = lights;
         }
@@ -180,11 +209,11 @@ pub fn run_sequence(
             TemporalRow {
                 sequence: seq.name.clone(),
                 method: tr
-                    .method
-                    .map(|m| m.name().to_string())
+                    .variant
+                    .map(|v| variants[v].label.clone())
                     .unwrap_or_else(|| SH_NAME.to_string()),
                 filter: if tr.filter.is_some() { "fir" } else { "none" },
-                lights: if tr.method.is_some() { n } else { 0 },
+                lights: if tr.variant.is_some() { n } else { 0 },
                 flicker: {
                     // Skip the warm-up; compare the filtered series with the delayed truth.
                     let warm = (fir.kernel().len() - 1).min(tr.series.len().saturating_sub(2));
@@ -196,6 +225,7 @@ pub fn run_sequence(
                 speed_mean_deg: mean,
                 speed_p99_deg: p99,
                 speed_max_deg: max,
+                speed_max_at: tr.worst.map(|w| (w.1, w.2)),
                 delay_nominal,
                 delay_measured: best_lag(&tr.series, &truth_series),
             }

@@ -228,6 +228,52 @@ pub struct Extractor {
     previous: HashMap<(usize, Domain, usize), Vec<Vec3>>,
     /// Where `warp_seeds` took the current seeds from (it decides the Lloyd steps).
     seed_origin: SeedOrigin,
+    /// How far a light may move in one frame of video mode.
+    tracking: VideoTracking,
+    /// The lights' moves toward their centroids in the current frame (radians), and a copy to
+    /// take their median from; reused.
+    moves: Vec<f32>,
+    moves_scratch: Vec<f32>,
+}
+
+/// How far a light of the default method may move in one frame of video mode (ALGORITHMS.md
+/// §4.3; the measured choice is in docs/EVALUATION.md, "Video mode still jumped").
+///
+/// A light moves from last frame's direction toward its cell's new centroid by at most
+/// `max_step_deg`, and is reported where it stopped: when a dim light loses the edge of a compact
+/// source to a neighbour, its centroid swings across its large cell within a frame or two (a
+/// k-means fixed point vanishing), and the cap spreads that swing over frames. Two exceptions keep
+/// the lights on their energy: a light carrying a share s of the frame's luminance stops at most
+/// `lag_budget / s` degrees short of its centroid (a light that takes over a lamp switched on goes
+/// to it at once), and the cap is at least `follow_factor` × the median of all lights' moves (a
+/// fast turn of the whole map is followed).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VideoTracking {
+    /// Largest step toward its centroid a light takes in one frame, degrees; infinite: none.
+    pub max_step_deg: f32,
+    /// Share of the frame's luminance × degrees a light may be left short of its centroid.
+    pub lag_budget: f32,
+    /// The cap is at least this × the median of the lights' moves to their centroids.
+    pub follow_factor: f32,
+}
+
+impl VideoTracking {
+    /// Every light goes to its centroid each frame (one plain Lloyd step).
+    pub const UNLIMITED: VideoTracking = VideoTracking {
+        max_step_deg: f32::INFINITY,
+        lag_budget: 0.0,
+        follow_factor: 0.0,
+    };
+}
+
+impl Default for VideoTracking {
+    fn default() -> Self {
+        VideoTracking {
+            max_step_deg: 3.0,
+            lag_budget: 0.03,
+            follow_factor: 2.0,
+        }
+    }
 }
 
 /// Where a frame's seeds came from.
@@ -443,6 +489,9 @@ impl Default for Extractor {
             video: false,
             previous: HashMap::new(),
             seed_origin: SeedOrigin::Warp,
+            tracking: VideoTracking::default(),
+            moves: Vec::new(),
+            moves_scratch: Vec::new(),
         }
     }
 }
@@ -466,15 +515,21 @@ impl Extractor {
     /// that each light follows what its cell holds and moves only as far as that moves. Warping
     /// afresh, a lamp that slides from one row of the warp's conditional CDFs to the next drags
     /// the points of that row across it (the warp is continuous but far from smooth there), and
-    /// light ids jump tens of degrees in one frame (ALGORITHMS.md §11). A steady scene converges
-    /// toward a k-means fixed point (ALGORITHMS.md §10), one step a frame. The first frame, and
-    /// any frame of another size or count, starts from the warp and takes [`VIDEO_START_STEPS`]
-    /// Lloyd steps.
+    /// light ids jump tens of degrees in one frame (ALGORITHMS.md §11). How far a light may move
+    /// in one frame is [`VideoTracking`]'s to say (see [`Self::set_video_tracking`]).
+    /// A steady scene converges toward a k-means fixed point (ALGORITHMS.md §10), one step a
+    /// frame. The first frame, and any frame of another size or count, starts from the warp and
+    /// takes [`VIDEO_START_STEPS`] Lloyd steps.
     pub fn set_video(&mut self, video: bool) {
         self.video = video;
         if !video {
             self.previous.clear();
         }
+    }
+
+    /// How far a light may move in one frame of video mode (see [`VideoTracking`]).
+    pub fn set_video_tracking(&mut self, tracking: VideoTracking) {
+        self.tracking = tracking;
     }
 
     /// The density the voronoi method warps its points by (see [`Placement`]).
@@ -762,7 +817,15 @@ impl Extractor {
         };
         if steps == 0 {
             let lights = self.assign_spherical_once(image, false);
-            return self.repair_dead(image, lights);
+            // Lights the repair re-seeds go to their new place at once (empty unless any).
+            let dead: Vec<usize> = (0..lights.len())
+                .filter(|&k| self.accum[k].lum <= 0.0)
+                .collect();
+            let mut lights = self.repair_dead(image, lights);
+            if self.seed_origin == SeedOrigin::LastFrame {
+                self.limit_steps(image, &mut lights, &dead);
+            }
+            return lights;
         }
         // Lloyd steps on the sphere: assign, re-seed at the centroids, `refine` times, then the
         // final assignment. The steps only move the seeds, so they run on the image at half
@@ -790,6 +853,59 @@ impl Extractor {
         self.seeds = warped;
         self.half_image = half;
         lights
+    }
+
+    /// Video mode: each light moves from last frame's direction (its seed) toward its cell's
+    /// centroid by at most the step [`VideoTracking`] allows, and is reported where it stops;
+    /// the lights in `dead` were re-seeded by the repair and keep their centroids.
+    fn limit_steps(&mut self, image: &DomainImage, lights: &mut [Light], dead: &[usize]) {
+        let t = self.tracking;
+        if !(t.max_step_deg.is_finite() && t.max_step_deg >= 0.0) {
+            return;
+        }
+        let Some(prev) = self.previous.get(&(lights.len(), image.domain, image.side)) else {
+            return;
+        };
+        self.moves.clear();
+        self.moves.extend(
+            lights
+                .iter()
+                .zip(prev)
+                .map(|(l, &p)| angle(p, Vec3::from_array(l.to_light))),
+        );
+        let median = if self.moves.is_empty() {
+            0.0
+        } else {
+            self.moves_scratch.clear();
+            self.moves_scratch.extend_from_slice(&self.moves);
+            let mid = self.moves_scratch.len() / 2;
+            *self
+                .moves_scratch
+                .select_nth_unstable_by(mid, f32::total_cmp)
+                .1
+        };
+        let cap = t.max_step_deg.to_radians().max(t.follow_factor * median);
+        let budget = t.lag_budget.max(0.0).to_radians();
+        let total: f64 = self.accum.iter().map(|a| a.lum).sum();
+        for (k, l) in lights.iter_mut().enumerate() {
+            let want = self.moves[k];
+            if want <= cap || dead.contains(&k) {
+                continue;
+            }
+            let share = if total > 0.0 {
+                (self.accum[k].lum / total) as f32
+            } else {
+                0.0
+            };
+            let limit = if share > 0.0 {
+                cap.max(want - budget / share)
+            } else {
+                cap
+            };
+            if want > limit {
+                l.to_light = step_toward(prev[k], Vec3::from_array(l.to_light), limit).to_array();
+            }
+        }
     }
 
     /// Gives each light left without energy by the last full-resolution assignment a place of
@@ -1067,6 +1183,22 @@ impl Extractor {
     }
 }
 
+/// Angle between two unit vectors, radians (accurate near 0, unlike acos of the dot product).
+fn angle(a: Vec3, b: Vec3) -> f32 {
+    2.0 * ((a - b).length() * 0.5).clamp(0.0, 1.0).asin()
+}
+
+/// `from` turned toward `to` by `step` radians (`to` itself when it is at most that far).
+fn step_toward(from: Vec3, to: Vec3, step: f32) -> Vec3 {
+    if angle(from, to) <= step {
+        return to;
+    }
+    let Some(u) = (to - from * from.dot(to)).try_normalize() else {
+        return to;
+    };
+    (from * step.cos() + u * step.sin()).normalize()
+}
+
 /// Resolution of the cell-id grid of the paper variant's planar Voronoi diagram.
 const PAPER_GRID: usize = 512;
 
@@ -1287,6 +1419,20 @@ mod tests {
                 "N={n}: level {cap} vs bisection {lo}"
             );
         }
+    }
+
+    /// A limited step turns along the great circle by exactly the step, and a target within it
+    /// is reached exactly.
+    #[test]
+    fn a_limited_step_turns_by_the_step_along_the_great_circle() {
+        let from = Vec3::new(1.0, 0.2, -0.3).normalize();
+        let to = Vec3::new(-0.2, 0.9, 0.4).normalize();
+        let step = 3f32.to_radians();
+        let d = step_toward(from, to, step);
+        assert!((angle(from, d) - step).abs() < 1e-5, "{}", angle(from, d));
+        assert!((angle(from, d) + angle(d, to) - angle(from, to)).abs() < 1e-5);
+        assert_eq!(step_toward(from, to, angle(from, to) + 1e-3), to);
+        assert!((angle(from, Vec3::Y) - Vec3::Y.angle_between(from)).abs() < 1e-5);
     }
 
     /// Exponents in eighths by square roots equal powf; the uniform share adds β × the mean.
