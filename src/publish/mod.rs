@@ -50,7 +50,8 @@ const CLIENT_CAPACITY: usize = 128;
 /// What `serve --publish` asks for.
 #[derive(Clone, Debug)]
 pub struct PublishConfig {
-    /// `nats://host:port` (or `tls://`), without credentials.
+    /// `nats://host:port` (or `tls://`); credentials in it (only from `VEMLIGHT_NATS`, see
+    /// [`check_url`]) become the login when connecting.
     pub url: String,
     pub camera: String,
     /// The light counts published, each on its own subject.
