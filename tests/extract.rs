@@ -687,6 +687,57 @@ fn a_disc_source_gives_a_light_of_its_radius() {
     }
 }
 
+/// ALGORITHMS.md §12, "Not across the horizon": no light's disc crosses the horizon, on every
+/// map and on a sky that is brightest in a wide band just above it (where a cell's core spreads
+/// over tens of degrees and the unclamped disc would reach below the horizon), while a light
+/// high above the horizon keeps the spread of its core.
+#[test]
+fn no_light_disc_crosses_the_horizon() {
+    let (w, h) = (1024, 512);
+    let mut pixels = vec![[0.0f32; 3]; w * h];
+    for j in 0..h {
+        for i in 0..w {
+            let (d, _) = Projection::LatLong.pixel(i, j, w, h).unwrap();
+            let elev = d.y.asin().to_degrees();
+            // A glow band peaking 4° above the horizon, 15° wide, over a dim ground.
+            let y = if elev > 0.0 {
+                1.0 + 20.0 * (-((elev - 4.0) / 15.0).powi(2)).exp()
+            } else {
+                0.2
+            };
+            pixels[j * w + i] = [y as f32; 3];
+        }
+    }
+    let band = EnvMap::from_pixels(w, h, pixels, Projection::LatLong).unwrap();
+    let mut maps: Vec<(String, EnvMap)> = vec![("band".into(), band)];
+    maps.extend(MAPS.iter().map(|m| (m.to_string(), load(m))));
+    let mut clamped = 0;
+    for (name, map) in &maps {
+        for n in [16, 64] {
+            let out = Extractor::new().extract(map, &opts(n, Domain::Sphere, Method::Voronoi));
+            for l in &out.lights {
+                let gap = l.dir().y.abs().clamp(0.0, 1.0).asin();
+                assert!(
+                    l.angular_radius as f64 <= gap + 1e-6,
+                    "{name} N={n}: light {} at {:.2}° elevation has radius {:.2}°",
+                    l.id,
+                    gap.to_degrees(),
+                    (l.angular_radius as f64).to_degrees()
+                );
+                if name == "band" && l.dir().y > 0.0 && l.dir().y < 0.2 {
+                    clamped += (l.angular_radius as f64 >= gap - 1e-6) as usize;
+                }
+            }
+        }
+    }
+    // The band's low lights are the ones the rule holds back (their cores are wider than their
+    // height above the horizon); without the rule the assertion above fails on them.
+    assert!(
+        clamped >= 4,
+        "only {clamped} low band lights were at the horizon bound"
+    );
+}
+
 /// Video mode (`Extractor::set_video`): on a steady scene each frame takes one more Lloyd step from
 /// the last, so the lights settle (under half a degree a frame after 16 frames, and falling: Lloyd
 /// converges linearly) at an error no worse than a single frame's and near the k-means floor, with

@@ -62,6 +62,13 @@ pub fn angular_radius(energy: f64, moment_len: f64) -> f32 {
     (2.0 * spread.sqrt()).min(std::f64::consts::PI) as f32
 }
 
+/// The largest angular radius a light toward `to_light` may have without its disc crossing the
+/// horizon (ALGORITHMS.md §12, "Not across the horizon"): the angle between the direction and the
+/// horizontal plane.
+pub fn horizon_gap(to_light: [f32; 3]) -> f32 {
+    to_light[1].clamp(-1.0, 1.0).abs().asin()
+}
+
 /// The strongest light or tight cluster of lights (the sun), WebXR's "primary light".
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PrimaryLight {

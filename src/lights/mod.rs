@@ -23,7 +23,8 @@ pub mod sh;
 pub mod vmlps;
 
 pub use light::{
-    Light, PRIMARY_CLUSTER_DEG, PrimaryLight, angular_radius, primary_light, total_irradiance,
+    Light, PRIMARY_CLUSTER_DEG, PrimaryLight, angular_radius, horizon_gap, primary_light,
+    total_irradiance,
 };
 
 use crate::envmap::EnvMap;
@@ -737,7 +738,12 @@ impl Extractor {
         let lights = if method == Method::Paper {
             self.assign_paper(image)
         } else {
-            self.assign_spherical(image)
+            let mut lights = self.assign_spherical(image);
+            // A cell's disc stays on its side of the horizon (ALGORITHMS.md §12).
+            for l in &mut lights {
+                l.angular_radius = l.angular_radius.min(horizon_gap(l.to_light));
+            }
+            lights
         };
         self.remember(method, image, &lights);
         lights
