@@ -740,7 +740,8 @@ fn no_light_disc_crosses_the_horizon() {
 
 /// Video mode (`Extractor::set_video`): on a steady scene each frame takes one more Lloyd step from
 /// the last, so the lights settle (under half a degree a frame after 16 frames, and falling: Lloyd
-/// converges linearly) at an error no worse than a single frame's and near the k-means floor, with
+/// converges linearly) at an error within 5 % of a single frame's (whose swap rounds may find a
+/// slightly better basin than the stream's Lloyd fixed point) and near the k-means floor, with
 /// energy exact in every frame.
 #[test]
 fn video_mode_settles_on_a_steady_scene() {
@@ -783,7 +784,7 @@ fn video_mode_settles_on_a_steady_scene() {
         );
         assert!(last_move < 0.5, "{name}: still moving {last_move}°");
         assert!(
-            err <= single * 1.02,
+            err <= single * 1.05,
             "{name}: settled {err} vs single frame {single}"
         );
         assert!(
@@ -791,6 +792,44 @@ fn video_mode_settles_on_a_steady_scene() {
             "{name}: settled {err} vs k-means {floor}"
         );
     }
+}
+
+/// ALGORITHMS.md §4.2, "Swaps": at 32 and 64 lights the default's diffuse error is within
+/// 1.25 × converged k-means (the floor) on every map of tests/data, and at 16 within 1.45 × (the
+/// gap left on night.exr, docs/EVALUATION.md). Without the swap rounds night.exr at 32 lights is
+/// 1.9 × (a Lloyd fixed point with several lights on one lamp), which this catches; the rounds
+/// never raise a map's k-means energy, by construction, so the error with them is checked against
+/// the floor rather than against the error without them.
+#[test]
+fn the_default_is_near_the_k_means_floor_on_every_map() {
+    let mut report = Vec::new();
+    let mut worst: (f64, String) = (0.0, String::new());
+    for name in MAPS {
+        let map = load(name);
+        let reference = IrradianceReference::from_map(&map, Domain::Sphere);
+        for n in [16, 32, 64] {
+            let err = |m| {
+                reference
+                    .error(
+                        &Extractor::new()
+                            .extract(&map, &opts(n, Domain::Sphere, m))
+                            .lights,
+                    )
+                    .rel_rms
+            };
+            let ratio = err(Method::Voronoi) / err(Method::KMeans);
+            report.push(format!("{name} N={n}: {ratio:.2} × k-means"));
+            let bound = if n == 16 { 1.45 } else { 1.25 };
+            assert!(
+                ratio <= bound,
+                "{name} N={n}: {ratio:.3} × k-means (bound {bound})"
+            );
+            if ratio > worst.0 {
+                worst = (ratio, format!("{name} N={n}"));
+            }
+        }
+    }
+    eprintln!("{}\nworst {:.2} ({})", report.join("\n"), worst.0, worst.1);
 }
 
 /// The baselines of ALGORITHMS.md §10. Converged k-means is the floor of the diffuse error: at

@@ -221,6 +221,8 @@ pub struct Extractor {
     /// The light each texel went to in the last full-resolution assignment (for the repair of
     /// lights left without energy).
     owner: Vec<u16>,
+    /// The same for the half-resolution image of the Lloyd steps (for the swap rounds).
+    half_owner: Vec<u16>,
     kmeans: kmeans::KMeans,
     vmlps: vmlps::Vmlps,
     /// Video mode (see [`set_video`](Self::set_video)): the default method starts each frame's
@@ -235,6 +237,8 @@ pub struct Extractor {
     /// take their median from; reused.
     moves: Vec<f32>,
     moves_scratch: Vec<f32>,
+    /// Swap rounds of a single map's Lloyd steps (see [`set_swap_rounds`](Self::set_swap_rounds)).
+    swap_rounds: usize,
 }
 
 /// How far a light of the default method may move in one frame of video mode (ALGORITHMS.md
@@ -288,6 +292,14 @@ enum SeedOrigin {
     /// The previous frame's lights (video mode): one full-resolution step.
     LastFrame,
 }
+
+/// Swap rounds a single map's lights take after their Lloyd steps (ALGORITHMS.md §4.2, "Swaps"),
+/// up to [`SWAP_MAX_LIGHTS`] lights: the largest worst-map gain per millisecond measured
+/// (docs/EVALUATION.md "Swaps").
+pub const SWAP_ROUNDS: usize = 4;
+/// Above this many lights the swap rounds are skipped: a poor basin costs little there (every map
+/// within 1.1 × the k-means floor at 256 lights without them) and a round costs the most.
+pub const SWAP_MAX_LIGHTS: usize = 64;
 
 /// Lloyd steps of the first frame of a video stream (see [`Extractor::set_video`]): the later
 /// frames carry on from it, and with only the usual two steps the first frames' lights still
@@ -485,6 +497,7 @@ impl Default for Extractor {
             placement: Placement::default(),
             density: Vec::new(),
             owner: Vec::new(),
+            half_owner: Vec::new(),
             kmeans: Default::default(),
             vmlps: Default::default(),
             video: false,
@@ -493,6 +506,7 @@ impl Default for Extractor {
             tracking: VideoTracking::default(),
             moves: Vec::new(),
             moves_scratch: Vec::new(),
+            swap_rounds: SWAP_ROUNDS,
         }
     }
 }
@@ -508,6 +522,12 @@ impl Extractor {
     /// median cut's at every N ≥ 16 (docs/EVALUATION.md, docs/PERFORMANCE.md).
     pub fn set_refine(&mut self, steps: usize) {
         self.refine = steps.min(8);
+    }
+
+    /// Swap rounds of a single map's default lights, up to [`SWAP_MAX_LIGHTS`] lights (default
+    /// [`SWAP_ROUNDS`]; 0: none). A stream's later frames take none: a swap is a jump.
+    pub fn set_swap_rounds(&mut self, rounds: usize) {
+        self.swap_rounds = rounds;
     }
 
     /// Video mode, for a stream of frames of one scene (the daemon, the temporal evaluation): the
@@ -854,11 +874,115 @@ impl Extractor {
                 *s = Vec3::from_array(l.to_light);
             }
         }
+        if self.seeds.len() <= SWAP_MAX_LIGHTS {
+            if coarse {
+                self.swap(&half, true);
+            } else {
+                self.swap(image, false);
+            }
+        }
         let lights = self.assign_spherical_once(image, false);
         let lights = self.repair_dead(image, lights);
         self.seeds = warped;
         self.half_image = half;
         lights
+    }
+
+    /// Σ over the cells of the last assignment of their k-means energy P − |M| (ALGORITHMS.md
+    /// §10): the objective the swap rounds lower.
+    fn kmeans_energy(&self) -> f64 {
+        self.accum.iter().map(|a| a.spread()).sum()
+    }
+
+    /// The swap rounds of a single map (ALGORITHMS.md §4.2, "Swaps"), from the seeds the Lloyd
+    /// steps left, on `image` (the steps' half-resolution image when `half`). Lloyd steps only
+    /// slide lights downhill into the nearest fixed point, and on a map of a few compact lamps that
+    /// fixed point can spend several lights on one lamp and none on another (night.exr at 32 lights:
+    /// 1.9 × the k-means floor). A round moves the light whose loss costs least (merge cost
+    /// |M_k| + |M_j| − |M_k + M_j| with its nearest neighbour j) to the lit texel farthest from the
+    /// centroid of the cell of largest energy, takes one Lloyd step, and keeps the move if the total
+    /// energy fell; a refused move is undone and the next-cheapest light tried.
+    fn swap(&mut self, image: &DomainImage, half: bool) {
+        let n = self.seeds.len();
+        if n < 3 {
+            return;
+        }
+        let lights = self.assign_spherical_once(image, half);
+        for (s, l) in self.seeds.iter_mut().zip(&lights) {
+            *s = Vec3::from_array(l.to_light);
+        }
+        let mut lights = self.assign_spherical_once(image, half);
+        let mut energy = self.kmeans_energy();
+        let mut failed: Vec<usize> = Vec::new();
+        for _ in 0..self.swap_rounds {
+            let dirs: Vec<Vec3> = lights
+                .iter()
+                .map(|l| Vec3::from_array(l.to_light))
+                .collect();
+            let moments: Vec<DVec3> = self.accum.iter().map(|a| a.weighted_dir).collect();
+            let mut weakest = (f64::INFINITY, usize::MAX);
+            for k in (0..n).filter(|k| !failed.contains(k)) {
+                let j = (0..n)
+                    .filter(|&j| j != k)
+                    .max_by(|&a, &b| dirs[k].dot(dirs[a]).total_cmp(&dirs[k].dot(dirs[b])))
+                    .unwrap_or(k);
+                let cost =
+                    moments[k].length() + moments[j].length() - (moments[k] + moments[j]).length();
+                if cost < weakest.0 {
+                    weakest = (cost, k);
+                }
+            }
+            let k = weakest.1;
+            if k == usize::MAX {
+                break;
+            }
+            let Some(c) = (0..n)
+                .filter(|&c| c != k && self.accum[c].can_donate())
+                .max_by(|&a, &b| self.accum[a].spread().total_cmp(&self.accum[b].spread()))
+            else {
+                break;
+            };
+            let Some((t, _)) = self.farthest_lit_texels(image, &[c], half)[0] else {
+                break;
+            };
+            let Some(dir) = Vec3::from_array(image.moment[t]).try_normalize() else {
+                break;
+            };
+            let before = self.seeds.clone();
+            let accum_before = self.accum.clone();
+            let owner_before = if half {
+                self.half_owner.clone()
+            } else {
+                self.owner.clone()
+            };
+            for (s, l) in self.seeds.iter_mut().zip(&lights) {
+                *s = Vec3::from_array(l.to_light);
+            }
+            self.seeds[k] = dir;
+            let step = self.assign_spherical_once(image, half);
+            for (s, l) in self.seeds.iter_mut().zip(&step) {
+                *s = Vec3::from_array(l.to_light);
+            }
+            let trial = self.assign_spherical_once(image, half);
+            let e = self.kmeans_energy();
+            if e < energy {
+                energy = e;
+                lights = trial;
+                failed.clear();
+            } else {
+                self.seeds = before;
+                self.accum = accum_before;
+                if half {
+                    self.half_owner = owner_before;
+                } else {
+                    self.owner = owner_before;
+                }
+                failed.push(k);
+            }
+        }
+        for (s, l) in self.seeds.iter_mut().zip(&lights) {
+            *s = Vec3::from_array(l.to_light);
+        }
     }
 
     /// Video mode: each light moves from last frame's direction (its seed) toward its cell's
@@ -936,7 +1060,7 @@ impl Extractor {
             }
             donors.sort_by(|&a, &b| self.accum[b].spread().total_cmp(&self.accum[a].spread()));
             donors.truncate(dead.len());
-            let farthest = self.farthest_lit_texels(image, &donors);
+            let farthest = self.farthest_lit_texels(image, &donors, false);
             let mut moved = false;
             for (k, l) in lights.iter().enumerate() {
                 self.seeds[k] = Vec3::from_array(l.to_light);
@@ -964,7 +1088,9 @@ impl Extractor {
         &self,
         image: &DomainImage,
         donors: &[usize],
+        half: bool,
     ) -> Vec<Option<(usize, usize)>> {
+        let owner = if half { &self.half_owner } else { &self.owner };
         let mut slot = vec![usize::MAX; self.accum.len()];
         for (i, &k) in donors.iter().enumerate() {
             slot[k] = i;
@@ -975,7 +1101,7 @@ impl Extractor {
             .collect();
         let mut best: Vec<Option<(f64, usize)>> = vec![None; donors.len()];
         let mut lit = vec![0usize; donors.len()];
-        for (t, &k) in self.owner.iter().enumerate() {
+        for (t, &k) in owner.iter().enumerate() {
             let i = slot[k as usize];
             let y = image.luminance[t] as f64;
             if i == usize::MAX || y <= 0.0 {
@@ -1006,7 +1132,8 @@ impl Extractor {
             else {
                 break;
             };
-            let Some((t, _)) = self.farthest_lit_texels(image, &[donor])[0].filter(|f| f.1 >= 2)
+            let Some((t, _)) =
+                self.farthest_lit_texels(image, &[donor], false)[0].filter(|f| f.1 >= 2)
             else {
                 // The donor's texels are one lit texel and unlit ones: it cannot spare any.
                 self.accum[donor].texels = 1;
@@ -1064,7 +1191,9 @@ impl Extractor {
 
         self.accum.clear();
         self.accum.resize(self.seeds.len(), CellAccum::default());
-        if !half {
+        if half {
+            self.half_owner.resize(side * side, 0);
+        } else {
             self.owner.resize(side * side, 0);
         }
         for cell in 0..grid.cell_count() {
@@ -1096,7 +1225,9 @@ impl Extractor {
                         continue; // padding
                     }
                     let t = t as usize;
-                    if !half {
+                    if half {
+                        self.half_owner[t] = best[l];
+                    } else {
                         self.owner[t] = best[l];
                     }
                     let y = image.luminance[t];
