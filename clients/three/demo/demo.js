@@ -290,7 +290,9 @@ function measureNow({ at = [] } = {}) {
       sh9_unshadowed: set.sh9_unshadowed ?? null,
     },
     shadowed: shadowed.map(({ id, direction, intensity }) => ({ id, direction, intensity })),
-    sun: sun ? { id: sun.id, direction: sun.direction } : null,
+    // `drawn`: the sun's direction as rendered (smoothed toward the plan's), so that a caller can
+    // wait until the frame shows what the plan says.
+    sun: sun ? { id: sun.id, direction: sun.direction, drawn: client.slots.find((s) => s.id === sun.id)?.dir.toArray() ?? null } : null,
     objects: objs,
     open,
     at: at.map((p) => sample(new THREE.Vector3(...p), false)),
