@@ -427,13 +427,18 @@ async fn the_demo_page_draws_the_live_lights_with_shadows() {
     );
 
     // The budget is selectable: K = 1 from the page's own control.
-    let seq = s["stats"]["seq"].as_u64().unwrap();
-    cdp.eval("vemlightDemo.setBudget({ shadowed: 1 }), 'null'")
-        .await;
+    // A set applied after the switch comes from the new connection (the switch closes the old
+    // socket at once). Its seq says nothing: each stream counts its own from 1, and the K = 1
+    // stream starts afresh, so the applied count is what shows a new set arrived.
+    let applied = cdp
+        .eval("vemlightDemo.setBudget({ shadowed: 1 }), String(vemlightDemo.client.stats.applied)")
+        .await
+        .as_u64()
+        .unwrap();
     let s = cdp
         .wait_for("the budget K = 1", Duration::from_secs(15), |s| {
             s["shadowedCount"].as_u64() == Some(1)
-                && s["stats"]["seq"].as_u64() > Some(seq)
+                && s["stats"]["applied"].as_u64() > Some(applied)
                 && s["stats"]["connected"] == true
         })
         .await;
