@@ -689,8 +689,8 @@ fn a_disc_source_gives_a_light_of_its_radius() {
 
 /// ALGORITHMS.md §12, "Not across the horizon": no light's disc crosses the horizon, on every
 /// map and on a sky that is brightest in a wide band just above it (where a cell's core spreads
-/// over tens of degrees and the unclamped disc would reach below the horizon), while a light
-/// high above the horizon keeps the spread of its core.
+/// over tens of degrees and the unclamped disc would reach below the horizon). That a light high
+/// above the horizon keeps the spread of its core is `a_disc_source_gives_a_light_of_its_radius`.
 #[test]
 fn no_light_disc_crosses_the_horizon() {
     let (w, h) = (1024, 512);

@@ -870,9 +870,7 @@ impl Extractor {
             } else {
                 self.assign_spherical_once(image, false)
             };
-            for (s, l) in self.seeds.iter_mut().zip(&lights) {
-                *s = Vec3::from_array(l.to_light);
-            }
+            self.seed_at(&lights);
         }
         if self.seeds.len() <= SWAP_MAX_LIGHTS {
             if coarse {
@@ -886,6 +884,13 @@ impl Extractor {
         self.seeds = warped;
         self.half_image = half;
         lights
+    }
+
+    /// Moves each seed to its light's direction (a Lloyd step's re-seeding).
+    fn seed_at(&mut self, lights: &[Light]) {
+        for (s, l) in self.seeds.iter_mut().zip(lights) {
+            *s = Vec3::from_array(l.to_light);
+        }
     }
 
     /// Σ over the cells of the last assignment of their k-means energy P − |M| (ALGORITHMS.md
@@ -908,9 +913,7 @@ impl Extractor {
             return;
         }
         let lights = self.assign_spherical_once(image, half);
-        for (s, l) in self.seeds.iter_mut().zip(&lights) {
-            *s = Vec3::from_array(l.to_light);
-        }
+        self.seed_at(&lights);
         let mut lights = self.assign_spherical_once(image, half);
         let mut energy = self.kmeans_energy();
         let mut failed: Vec<usize> = Vec::new();
@@ -955,14 +958,10 @@ impl Extractor {
             } else {
                 self.owner.clone()
             };
-            for (s, l) in self.seeds.iter_mut().zip(&lights) {
-                *s = Vec3::from_array(l.to_light);
-            }
+            self.seed_at(&lights);
             self.seeds[k] = dir;
             let step = self.assign_spherical_once(image, half);
-            for (s, l) in self.seeds.iter_mut().zip(&step) {
-                *s = Vec3::from_array(l.to_light);
-            }
+            self.seed_at(&step);
             let trial = self.assign_spherical_once(image, half);
             let e = self.kmeans_energy();
             if e < energy {
@@ -980,9 +979,7 @@ impl Extractor {
                 failed.push(k);
             }
         }
-        for (s, l) in self.seeds.iter_mut().zip(&lights) {
-            *s = Vec3::from_array(l.to_light);
-        }
+        self.seed_at(&lights);
     }
 
     /// Video mode: each light moves from last frame's direction (its seed) toward its cell's
@@ -1062,9 +1059,7 @@ impl Extractor {
             donors.truncate(dead.len());
             let farthest = self.farthest_lit_texels(image, &donors, false);
             let mut moved = false;
-            for (k, l) in lights.iter().enumerate() {
-                self.seeds[k] = Vec3::from_array(l.to_light);
-            }
+            self.seed_at(&lights);
             for (&d, far) in dead.iter().zip(&farthest) {
                 if let Some((t, _)) = *far
                     && let Some(dir) = Vec3::from_array(image.moment[t]).try_normalize()
