@@ -286,13 +286,23 @@ fn scatter_pixels(
         }
         let (lo, hi) = (p0.max(only.start), (p0 + len as usize).min(only.end));
         let e0 = first_entry as usize + (lo - p0);
+        // Neighbouring pixels mostly share a texel (about 3 in a row): their deposits are summed
+        // in registers and stored once, which keeps the loop free of a store → load chain.
+        let mut texel = SKIP;
+        let (mut radiance, mut moment) = (Vec3A::ZERO, Vec3A::ZERO);
         for (e, p) in entries[e0..e0 + (hi - lo)].iter().zip(&pixels[lo..hi]) {
+            if e.texel != texel {
+                if texel != SKIP {
+                    accum.add(texel as usize, radiance, moment);
+                }
+                (texel, radiance, moment) = (e.texel, Vec3A::ZERO, Vec3A::ZERO);
+            }
             let p = Vec3A::from_array(*p);
-            accum.add(
-                e.texel as usize,
-                p * e.weight,
-                Vec3A::from_array(e.weighted_dir) * p.dot(LUMINANCE),
-            );
+            radiance += p * e.weight;
+            moment += Vec3A::from_array(e.weighted_dir) * p.dot(LUMINANCE);
+        }
+        if texel != SKIP {
+            accum.add(texel as usize, radiance, moment);
         }
     }
 }
@@ -357,8 +367,10 @@ impl PixelTable {
                     continue;
                 };
                 let pixel = (j * width + i) as u32;
+                // Runs end with their row, so that `scatter_pixels`' register sums never join
+                // two rows (a frame resampled by rows gets the same sums).
                 match runs.last_mut() {
-                    Some(run) if run.0 + run.2 == pixel => run.2 += 1,
+                    Some(run) if run.0 + run.2 == pixel && i > 0 => run.2 += 1,
                     _ => runs.push((pixel, entries.len() as u32, 1)),
                 }
                 entries.push(PixelEntry {
@@ -390,14 +402,18 @@ impl PixelTable {
             .map(|texels| {
                 let mut runs: Vec<(u32, u32, u32)> = Vec::new();
                 for &(p0, e0, len) in &self.runs {
+                    let first_run = runs.len();
                     for k in 0..len {
                         let texel = self.entries[(e0 + k) as usize].texel as usize;
                         if !texels.contains(&texel) {
                             continue;
                         }
                         let (pixel, entry) = (p0 + k, e0 + k);
+                        let joins = runs.len() > first_run;
                         match runs.last_mut() {
-                            Some(run) if run.0 + run.2 == pixel && run.1 + run.2 == entry => {
+                            Some(run)
+                                if joins && run.0 + run.2 == pixel && run.1 + run.2 == entry =>
+                            {
                                 run.2 += 1
                             }
                             _ => runs.push((pixel, entry, 1)),
