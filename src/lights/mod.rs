@@ -340,36 +340,24 @@ impl Placement {
     pub fn density(&self, luminance: &[f32], n: usize, density: &mut Vec<f32>) {
         density.clear();
         let e = self.exponent;
-        let clean = |y: f32| if y.is_finite() { y.max(0.0) } else { 0.0 };
         // Exponents in eighths (the swept ones) by square roots, which vectorise; powf does not.
         let eighths = e * 8.0;
         if eighths.fract() == 0.0 && (1.0..=8.0).contains(&eighths) {
-            let k = eighths as u32;
-            density.extend(luminance.iter().map(|&y| {
-                let y = clean(y);
-                if k == 8 {
-                    return y;
-                }
-                let s1 = y.sqrt();
-                let s2 = s1.sqrt();
-                let s3 = s2.sqrt();
-                let mut v = 1.0;
-                if k & 4 != 0 {
-                    v *= s1;
-                }
-                if k & 2 != 0 {
-                    v *= s2;
-                }
-                if k & 1 != 0 {
-                    v *= s3;
-                }
-                v
-            }));
+            match eighths as u32 {
+                1 => eighth_powers::<1>(luminance, density),
+                2 => eighth_powers::<2>(luminance, density),
+                3 => eighth_powers::<3>(luminance, density),
+                4 => eighth_powers::<4>(luminance, density),
+                5 => eighth_powers::<5>(luminance, density),
+                6 => eighth_powers::<6>(luminance, density),
+                7 => eighth_powers::<7>(luminance, density),
+                _ => eighth_powers::<8>(luminance, density),
+            }
         } else {
-            density.extend(luminance.iter().map(|&y| clean(y).powf(e)));
+            density.extend(luminance.iter().map(|&y| clean_luminance(y).powf(e)));
         }
         if self.uniform_share > 0.0 && !density.is_empty() {
-            let mean = density.iter().map(|&d| d as f64).sum::<f64>() / density.len() as f64;
+            let mean = sum_f64(density) / density.len() as f64;
             let add = (self.uniform_share as f64 * mean) as f32;
             for d in density.iter_mut() {
                 *d += add;
@@ -382,11 +370,8 @@ impl Placement {
         let nf = n as f64;
         // g(C) = c·S(C)/N − C with S(C) = Σ min(d, C): concave, g(0) = 0; Newton from the right
         // converges monotonically to its positive root.
-        let (mut total, mut max) = (0.0f64, 0.0f32);
-        for &d in density.iter() {
-            total += d as f64;
-            max = max.max(d);
-        }
+        let total = sum_f64(density);
+        let max = max_f32(density, 0.0);
         if total <= 0.0 || c * total / nf >= max as f64 {
             return; // no texel over the cap
         }
@@ -394,15 +379,8 @@ impl Placement {
         // whole while C stays above the floor, so the Newton passes run over the few texels above
         // it (the bright ones); should the root fall below the floor, every texel takes part.
         let floor = (c * total / nf / 8.0) as f32;
-        let mut base = 0.0f64;
-        let mut bright: Vec<f32> = Vec::new();
-        for &d in density.iter() {
-            if d > floor {
-                bright.push(d);
-            } else {
-                base += d as f64;
-            }
-        }
+        let bright: Vec<f32> = density.iter().copied().filter(|&d| d > floor).collect();
+        let base = total - bright.iter().map(|&d| d as f64).sum::<f64>();
         let mut cap = max as f64;
         for _ in 0..64 {
             let (values, mut s) = if cap > floor as f64 {
@@ -436,6 +414,73 @@ impl Placement {
             *d = d.min(cf);
         }
     }
+}
+
+/// A luminance as a density's input: NaN, infinities and negatives count as 0.
+fn clean_luminance(y: f32) -> f32 {
+    // Two comparisons (false for NaN), which vectorise as a select.
+    if y > 0.0 && y <= f32::MAX { y } else { 0.0 }
+}
+
+/// `density` = clean(`luminance`)^(K/8), by products of the first three square roots; K is a
+/// constant so that the loop has no branch and vectorises.
+fn eighth_powers<const K: u32>(luminance: &[f32], density: &mut Vec<f32>) {
+    density.resize(luminance.len(), 0.0);
+    for (d, &y) in density.iter_mut().zip(luminance) {
+        *d = eighth_power::<K>(clean_luminance(y));
+    }
+}
+
+/// y^(K/8) for a clean (finite, non-negative) luminance.
+fn eighth_power<const K: u32>(y: f32) -> f32 {
+    if K == 8 {
+        return y;
+    }
+    let s1 = y.sqrt();
+    let s2 = s1.sqrt();
+    let s3 = s2.sqrt();
+    let mut v = 1.0;
+    if K & 4 != 0 {
+        v *= s1;
+    }
+    if K & 2 != 0 {
+        v *= s2;
+    }
+    if K & 1 != 0 {
+        v *= s3;
+    }
+    v
+}
+
+/// Σ `values` in f64, in eight lanes: every term is added in f64 as a sequential sum's would be,
+/// only the order differs, and the loop vectorises (LLVM keeps a float sum's order, so one running
+/// sum does not).
+fn sum_f64(values: &[f32]) -> f64 {
+    let mut lanes = [0.0f64; 8];
+    let chunks = values.chunks_exact(8);
+    let tail: f64 = chunks.remainder().iter().map(|&v| v as f64).sum();
+    for c in chunks {
+        for (l, &v) in lanes.iter_mut().zip(c) {
+            *l += v as f64;
+        }
+    }
+    lanes.iter().sum::<f64>() + tail
+}
+
+/// The largest of `values` (at least `floor`), in eight lanes, so that the loop vectorises.
+fn max_f32(values: &[f32], floor: f32) -> f32 {
+    let mut lanes = [floor; 8];
+    let chunks = values.chunks_exact(8);
+    let tail = chunks
+        .remainder()
+        .iter()
+        .fold(floor, |m, &v| if v > m { v } else { m });
+    for c in chunks {
+        for (l, &v) in lanes.iter_mut().zip(c) {
+            *l = if v > *l { v } else { *l };
+        }
+    }
+    lanes.iter().fold(tail, |m, &v| if v > m { v } else { m })
 }
 
 /// Per-light sums over its cell.
@@ -1359,14 +1404,11 @@ impl DirectionsSoa {
 
     /// Dot products of every direction with `d`, into `out`.
     fn dots(&self, d: Vec3, out: &mut Vec<f32>) {
-        out.clear();
-        out.extend(
-            self.x
-                .iter()
-                .zip(&self.y)
-                .zip(&self.z)
-                .map(|((x, y), z)| d.x * x + d.y * y + d.z * z),
-        );
+        // Into a buffer of the final length, a loop that vectorises (`extend` did not).
+        out.resize(self.x.len(), 0.0);
+        for (((o, x), y), z) in out.iter_mut().zip(&self.x).zip(&self.y).zip(&self.z) {
+            *o = d.x * x + d.y * y + d.z * z;
+        }
     }
 }
 
@@ -1466,20 +1508,24 @@ impl CandidateGrid {
         self.starts.push(0);
         for (c, &centre) in self.centres.iter().enumerate() {
             self.seeds.dots(centre, &mut self.dots);
-            let best_dot = self.dots.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            let best_dot = max_f32(&self.dots, f32::NEG_INFINITY);
             let limit = best_dot.clamp(-1.0, 1.0).acos() + 2.0 * self.radii[c];
             let cos_limit = if limit >= std::f32::consts::PI {
                 -2.0
             } else {
                 limit.cos() - 1e-6
             };
-            self.candidates.extend(
-                self.dots
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, d)| **d >= cos_limit)
-                    .map(|(k, _)| k as u16),
-            );
+            // Without a branch per light (which is mispredicted whenever a light is near the
+            // limit): every id is written, and the count moves on past those within it.
+            let base = self.candidates.len();
+            self.candidates.resize(base + self.dots.len(), 0);
+            let out = &mut self.candidates[base..];
+            let mut kept = 0;
+            for (k, &d) in self.dots.iter().enumerate() {
+                out[kept] = k as u16;
+                kept += (d >= cos_limit) as usize;
+            }
+            self.candidates.truncate(base + kept);
             self.starts.push(self.candidates.len());
         }
     }
@@ -1513,6 +1559,31 @@ mod tests {
                 }
             })
             .collect()
+    }
+
+    /// The vectorised helpers agree with plain loops: the lane sum with a sequential f64 sum to
+    /// rounding, the lane maximum exactly, at lengths with and without a tail; and the density
+    /// reads NaN, infinite and negative luminances as 0.
+    #[test]
+    fn lane_sums_and_maxima_match_plain_loops() {
+        for len in [0usize, 1, 7, 8, 9, 100, 4099] {
+            let v = skewed(len, len as u64 + 7);
+            let plain: f64 = v.iter().map(|&x| x as f64).sum();
+            assert!(
+                (sum_f64(&v) - plain).abs() <= 1e-12 * plain.max(1.0),
+                "len {len}"
+            );
+            let max = v.iter().copied().fold(-1.0f32, f32::max);
+            assert_eq!(max_f32(&v, -1.0), max, "len {len}");
+        }
+        let p = Placement {
+            exponent: 0.5,
+            max_seeds_per_texel: 0.0,
+            uniform_share: 0.0,
+        };
+        let mut d = Vec::new();
+        p.density(&[f32::NAN, f32::INFINITY, -1.0, 0.0, 4.0], 4, &mut d);
+        assert_eq!(d, [0.0, 0.0, 0.0, 0.0, 2.0]);
     }
 
     /// The cap holds (no texel expects more than c of the N seeds, to rounding), texels under it
