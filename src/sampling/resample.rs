@@ -223,7 +223,7 @@ struct LatLongTable {
     /// angle.
     rows: Vec<[f32; 3]>,
     /// Per column: (sin φ, cos φ).
-    cols: Vec<[f32; 2]>,
+    cols: Vec<Vec3A>,
     /// Every span: the work of one thread, and what the bands of several are cut from.
     all: SpanList,
     /// With several threads, per band of texels: its spans, the others' pixels merged into
@@ -331,10 +331,10 @@ fn scatter_latlong(
                 let mut radiance = Vec3A::ZERO;
                 // (Σ Y sin φ, Σ Y, Σ Y cos φ)
                 let mut moment = Vec3A::ZERO;
-                for (p, &[sin_phi, cos_phi]) in row[col..end].iter().zip(&t.cols[col..end]) {
+                for (p, &phi) in row[col..end].iter().zip(&t.cols[col..end]) {
                     let p = Vec3A::from_array(*p);
                     radiance += p;
-                    moment += Vec3A::new(sin_phi, 1.0, cos_phi) * p.dot(LUMINANCE);
+                    moment += phi * p.dot(LUMINANCE);
                 }
                 accum.add(
                     span.texel as usize,
@@ -461,7 +461,7 @@ impl LatLongTable {
         let cols = (0..width)
             .map(|i| {
                 let phi = 2.0 * std::f64::consts::PI * ((i as f64 + 0.5) / width as f64 - 0.5);
-                [phi.sin() as f32, phi.cos() as f32]
+                Vec3A::new(phi.sin() as f32, 1.0, phi.cos() as f32)
             })
             .collect();
         LatLongTable {
