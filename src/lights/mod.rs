@@ -467,6 +467,12 @@ fn sum_f64(values: &[f32]) -> f64 {
     lanes.iter().sum::<f64>() + tail
 }
 
+/// The index of the largest of `values` (the first of equals; 0 when empty).
+fn max_index(values: &[f32]) -> usize {
+    let best = max_f32(values, f32::NEG_INFINITY);
+    values.iter().position(|&v| v == best).unwrap_or(0)
+}
+
 /// The largest of `values` (at least `floor`), in eight lanes, so that the loop vectorises.
 fn max_f32(values: &[f32], floor: f32) -> f32 {
     let mut lanes = [floor; 8];
@@ -506,6 +512,29 @@ impl CellAccum {
     /// costs, and so where a light without energy helps most.
     fn spread(&self) -> f64 {
         self.lum - self.weighted_dir.length()
+    }
+
+    /// Adds texel `t` of `image` to the cell's sums (the core's are a second pass, once the
+    /// cell's peak is known: [`add_core_texel`](Self::add_core_texel)).
+    #[inline(always)]
+    fn add_texel(&mut self, image: &DomainImage, t: usize) {
+        let y = image.luminance[t];
+        self.energy += Vec3::from_array(image.radiance[t]).as_dvec3();
+        self.weighted_dir += Vec3::from_array(image.moment[t]).as_dvec3();
+        self.lum += y as f64;
+        self.peak = self.peak.max(y);
+        self.texels += 1;
+    }
+
+    /// Adds texel `t` to the core's sums if it is in the core (at least [`CORE_FRACTION`] of the
+    /// cell's peak).
+    #[inline(always)]
+    fn add_core_texel(&mut self, image: &DomainImage, t: usize) {
+        let y = image.luminance[t];
+        if y > 0.0 && y >= CORE_FRACTION * self.peak {
+            self.core_lum += y as f64;
+            self.core_moment += Vec3::from_array(image.moment[t]).as_dvec3();
+        }
     }
 
     /// Whether the cell could spare a texel to a light without energy.
@@ -570,7 +599,8 @@ impl Extractor {
     }
 
     /// Swap rounds of a single map's default lights, up to [`SWAP_MAX_LIGHTS`] lights (default
-    /// [`SWAP_ROUNDS`]; 0: none). A stream's later frames take none: a swap is a jump.
+    /// [`SWAP_ROUNDS`]; 0: none, and no split above that count either). A stream's later frames
+    /// take none: a swap is a jump.
     pub fn set_swap_rounds(&mut self, rounds: usize) {
         self.swap_rounds = rounds;
     }
@@ -924,10 +954,72 @@ impl Extractor {
                 self.swap(image, false);
             }
         }
-        let lights = self.assign_spherical_once(image, false);
+        let mut lights = self.assign_spherical_once(image, false);
+        if self.seeds.len() > SWAP_MAX_LIGHTS && self.swap_rounds > 0 {
+            lights = self.split_brightest(image, lights);
+        }
         let lights = self.repair_dead(image, lights);
         self.seeds = warped;
         self.half_image = half;
+        lights
+    }
+
+    /// The light, not one of `skip`, whose loss costs least: its merge cost with its nearest
+    /// neighbour j, |M_k| + |M_j| − |M_k + M_j| (ALGORITHMS.md §4.2, "Swaps").
+    fn cheapest_to_merge(&self, lights: &[Light], skip: &[usize]) -> Option<usize> {
+        let n = lights.len();
+        let dirs = DirectionsSoa::from_lights(lights);
+        let mut dots = Vec::with_capacity(n);
+        let mut weakest = (f64::INFINITY, None);
+        for k in (0..n).filter(|k| !skip.contains(k)) {
+            dirs.dots(Vec3::from_array(lights[k].to_light), &mut dots);
+            dots[k] = f32::NEG_INFINITY;
+            let nearest = max_index(&dots);
+            let (mk, mj) = (self.accum[k].weighted_dir, self.accum[nearest].weighted_dir);
+            let cost = mk.length() + mj.length() - (mk + mj).length();
+            if cost < weakest.0 {
+                weakest = (cost, Some(k));
+            }
+        }
+        weakest.1
+    }
+
+    /// The split of a single map of more than [`SWAP_MAX_LIGHTS`] lights (ALGORITHMS.md §4.2,
+    /// "Split"), after the final assignment: the light cheapest to merge moves to the lit texel
+    /// farthest from the centroid of the brightest cell, the others to their lights, and the
+    /// full-resolution square is assigned again; kept if the total k-means energy fell. Point
+    /// lights err most where their cell is brightest once the rest is small: on a clear sky at 256
+    /// lights the sun's one light errs along its terminator, where two lights across its disc do
+    /// not, and the half-resolution swap rounds cannot see inside a disc that small.
+    fn split_brightest(&mut self, image: &DomainImage, lights: Vec<Light>) -> Vec<Light> {
+        let n = lights.len();
+        let Some(c) = (0..n)
+            .filter(|&c| self.accum[c].can_donate())
+            .max_by(|&a, &b| self.accum[a].lum.total_cmp(&self.accum[b].lum))
+        else {
+            return lights;
+        };
+        let Some(k) = self.cheapest_to_merge(&lights, &[c]) else {
+            return lights;
+        };
+        let Some((t, _)) = self.farthest_lit_texels(image, &[c], false)[0] else {
+            return lights;
+        };
+        let Some(dir) = Vec3::from_array(image.moment[t]).try_normalize() else {
+            return lights;
+        };
+        let energy = self.kmeans_energy();
+        let (seeds_before, owner_before, accum_before) =
+            (self.seeds.clone(), self.owner.clone(), self.accum.clone());
+        self.seed_at(&lights);
+        self.seeds[k] = dir;
+        let trial = self.assign_spherical_once(image, false);
+        if self.kmeans_energy() < energy {
+            return trial;
+        }
+        self.seeds = seeds_before;
+        self.owner = owner_before;
+        self.accum = accum_before;
         lights
     }
 
@@ -963,27 +1055,9 @@ impl Extractor {
         let mut energy = self.kmeans_energy();
         let mut failed: Vec<usize> = Vec::new();
         for _ in 0..self.swap_rounds {
-            let dirs: Vec<Vec3> = lights
-                .iter()
-                .map(|l| Vec3::from_array(l.to_light))
-                .collect();
-            let moments: Vec<DVec3> = self.accum.iter().map(|a| a.weighted_dir).collect();
-            let mut weakest = (f64::INFINITY, usize::MAX);
-            for k in (0..n).filter(|k| !failed.contains(k)) {
-                let j = (0..n)
-                    .filter(|&j| j != k)
-                    .max_by(|&a, &b| dirs[k].dot(dirs[a]).total_cmp(&dirs[k].dot(dirs[b])))
-                    .unwrap_or(k);
-                let cost =
-                    moments[k].length() + moments[j].length() - (moments[k] + moments[j]).length();
-                if cost < weakest.0 {
-                    weakest = (cost, k);
-                }
-            }
-            let k = weakest.1;
-            if k == usize::MAX {
+            let Some(k) = self.cheapest_to_merge(&lights, &failed) else {
                 break;
-            }
+            };
             let Some(c) = (0..n)
                 .filter(|&c| c != k && self.accum[c].can_donate())
                 .max_by(|&a, &b| self.accum[a].spread().total_cmp(&self.accum[b].spread()))
@@ -1270,25 +1344,14 @@ impl Extractor {
                     } else {
                         self.owner[t] = best[l];
                     }
-                    let y = image.luminance[t];
-                    let a = &mut self.accum[best[l] as usize];
-                    a.energy += Vec3::from_array(image.radiance[t]).as_dvec3();
-                    a.weighted_dir += Vec3::from_array(image.moment[t]).as_dvec3();
-                    a.lum += y as f64;
-                    a.peak = a.peak.max(y);
-                    a.texels += 1;
+                    self.accum[best[l] as usize].add_texel(image, t);
                 }
             }
         }
         if !half {
             // The cores: a second pass over the texels, by the owners just recorded.
             for (t, &k) in self.owner.iter().enumerate() {
-                let a = &mut self.accum[k as usize];
-                let y = image.luminance[t];
-                if y > 0.0 && y >= CORE_FRACTION * a.peak {
-                    a.core_lum += y as f64;
-                    a.core_moment += Vec3::from_array(image.moment[t]).as_dvec3();
-                }
+                self.accum[k as usize].add_core_texel(image, t);
             }
         }
         // Move each light to its cell's luminance-weighted centroid; a dark or empty cell keeps
@@ -1400,6 +1463,12 @@ impl DirectionsSoa {
             self.y.push(d.y);
             self.z.push(d.z);
         }
+    }
+
+    fn from_lights(lights: &[Light]) -> Self {
+        let mut soa = DirectionsSoa::default();
+        soa.extend(lights.iter().map(|l| Vec3::from_array(l.to_light)));
+        soa
     }
 
     /// Dot products of every direction with `d`, into `out`.
