@@ -1481,6 +1481,14 @@ impl DirectionsSoa {
     }
 }
 
+/// A cap holding every one of `dirs` (not empty): their normalised sum and the angle to the
+/// farthest of them, padded by float error so that bounds built on it stay conservative.
+fn bounding_cap(dirs: &[Vec3]) -> (Vec3, f32) {
+    let c = dirs.iter().sum::<Vec3>().try_normalize().unwrap_or(dirs[0]);
+    let min_dot = dirs.iter().map(|d| c.dot(*d)).fold(1.0f32, f32::min);
+    (c, min_dot.clamp(-1.0, 1.0).acos() + 1e-4)
+}
+
 /// Appends to `out` the lights of `from` that can be nearest to some direction within `radius`
 /// of `centre`: those within a_min + 2·radius of it, a_min the angle to the nearest of `from`
 /// (see [`CandidateGrid`]).
@@ -1550,6 +1558,8 @@ struct CandidateGrid {
     block_radii: Vec<f32>,
     block_candidates: Vec<u16>,
     block_starts: Vec<usize>,
+    /// Every light's id, 0..N: the list the blocks' candidates are cut from.
+    all: Vec<u16>,
     /// Candidate light ids, all cells concatenated; `starts[c]..starts[c+1]` is cell c's slice.
     candidates: Vec<u16>,
     starts: Vec<usize>,
@@ -1584,12 +1594,9 @@ impl CandidateGrid {
                         );
                     }
                 }
-                let cell = &dirs[start..];
-                let c = cell.iter().sum::<Vec3>().try_normalize().unwrap_or(cell[0]);
-                let min_dot = cell.iter().map(|d| c.dot(*d)).fold(1.0f32, f32::min);
-                // Pad by float error so the bound stays conservative.
+                let (c, radius) = bounding_cap(&dirs[start..]);
                 centres.push(c);
-                radii.push(min_dot.clamp(-1.0, 1.0).acos() + 1e-4);
+                radii.push(radius);
                 while texels.len() % LANES != 0 {
                     texels.push(u32::MAX);
                     dirs.push(Vec3::Y);
@@ -1613,14 +1620,9 @@ impl CandidateGrid {
                     .filter(|&t| texels[t] != u32::MAX)
                     .map(|t| dirs[t])
                     .collect();
-                let c = block_dirs
-                    .iter()
-                    .sum::<Vec3>()
-                    .try_normalize()
-                    .unwrap_or(block_dirs[0]);
-                let min_dot = block_dirs.iter().map(|d| c.dot(*d)).fold(1.0f32, f32::min);
+                let (c, radius) = bounding_cap(&block_dirs);
                 block_centres.push(c);
-                block_radii.push(min_dot.clamp(-1.0, 1.0).acos() + 1e-4);
+                block_radii.push(radius);
                 for cell in cells {
                     block_of[cell] = b;
                 }
@@ -1641,6 +1643,7 @@ impl CandidateGrid {
             block_radii,
             block_candidates: Vec::new(),
             block_starts: Vec::new(),
+            all: Vec::new(),
             candidates: Vec::new(),
             starts: Vec::new(),
             seeds: DirectionsSoa::default(),
@@ -1655,14 +1658,16 @@ impl CandidateGrid {
     fn fill_candidates(&mut self, seeds: &[Vec3]) {
         self.seeds.clear();
         self.seeds.extend(seeds.iter().copied());
-        let all: Vec<u16> = (0..seeds.len() as u16).collect();
+        if self.all.len() != seeds.len() {
+            self.all = (0..seeds.len() as u16).collect();
+        }
         self.block_candidates.clear();
         self.block_starts.clear();
         self.block_starts.push(0);
         for (&centre, &radius) in self.block_centres.iter().zip(&self.block_radii) {
             gather_candidates(
                 &self.seeds,
-                &all,
+                &self.all,
                 centre,
                 radius,
                 &mut self.dots,

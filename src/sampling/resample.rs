@@ -222,7 +222,8 @@ struct LatLongTable {
     /// Per row: (weight w, w·sin θ, w·cos θ), the weight being the pixel's over the texel's solid
     /// angle.
     rows: Vec<[f32; 3]>,
-    /// Per column: (sin φ, cos φ).
+    /// Per column: (sin φ, 1, cos φ), what a pixel's luminance scales into its span's moment
+    /// sums (one aligned 16-byte load per pixel).
     cols: Vec<Vec3A>,
     /// Every span: the work of one thread, and what the bands of several are cut from.
     all: SpanList,
