@@ -84,8 +84,14 @@ impl IrradianceReference {
     /// first moments summed rather than their centres, so the binning does not move a small source
     /// like the sun: the error is second order). Cheap enough for every `--max-error` request.
     pub fn from_domain_image(image: &DomainImage) -> Self {
+        Self::from_domain_image_at(image, REDUCED_SIDE, fibonacci_sphere(ERROR_NORMALS))
+    }
+
+    /// As [`from_domain_image`](Self::from_domain_image), binned into a `grid`×`grid` square and
+    /// evaluated at `normals`: coarser and cheaper, for choosing between light sets.
+    pub fn from_domain_image_at(image: &DomainImage, grid: usize, normals: Vec<DVec3>) -> Self {
         let side = image.side;
-        let g = REDUCED_SIDE.min(side);
+        let g = grid.clamp(1, side.max(1));
         let mut bins = vec![(Vec3::ZERO, 0.0f32); g * g];
         let sr = image.texel_solid_angle() as f32;
         for j in 0..side {
@@ -105,7 +111,7 @@ impl IrradianceReference {
             .filter(|b| b.1 > 0.0)
             .map(|(d, e)| (d.normalize_or(Vec3::Y), e))
             .collect();
-        Self::from_emitters(&emitters)
+        Self::with_normals(&emitters, normals)
     }
 
     /// E_N at every reference normal from a light set.

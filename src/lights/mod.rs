@@ -31,6 +31,7 @@ use crate::envmap::EnvMap;
 use crate::mapping::Domain;
 use crate::sampling::pointset::voronoi_raster;
 use crate::sampling::{Distribution2D, DomainImage, N_MAX, Resampler, progressive_points};
+use error::IrradianceReference;
 use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -239,6 +240,9 @@ pub struct Extractor {
     moves_scratch: Vec<f32>,
     /// Swap rounds of a single map's Lloyd steps (see [`set_swap_rounds`](Self::set_swap_rounds)).
     swap_rounds: usize,
+    /// The exponent of a single map's second start (see
+    /// [`set_second_start`](Self::set_second_start)); `None`: one start.
+    second_start: Option<f32>,
 }
 
 /// How far a light of the default method may move in one frame of video mode (ALGORITHMS.md
@@ -300,6 +304,17 @@ pub const SWAP_ROUNDS: usize = 4;
 /// Above this many lights the swap rounds are skipped: a poor basin costs little there (every map
 /// within 1.1 × the k-means floor at 256 lights without them) and a round costs the most.
 pub const SWAP_MAX_LIGHTS: usize = 64;
+
+/// The density exponent of a single map's second start (ALGORITHMS.md §4.2, "Two starts"): Y^½,
+/// the density converged k-means places its centres by, beside the default's Y^0.625.
+pub const SECOND_START_EXPONENT: f32 = 0.5;
+
+/// The diffuse error that decides between two starts is estimated from the map binned into
+/// `CHECK_GRID`² emitters (first moments kept, so the error is second order in the bin size) at
+/// `CHECK_NORMALS` Fibonacci normals: the irradiance is smooth, and the starts it tells apart
+/// differ by tens of percent where it matters.
+const CHECK_GRID: usize = 32;
+const CHECK_NORMALS: usize = 128;
 
 /// Lloyd steps of the first frame of a video stream (see [`Extractor::set_video`]): the later
 /// frames carry on from it, and with only the usual two steps the first frames' lights still
@@ -581,6 +596,7 @@ impl Default for Extractor {
             moves: Vec::new(),
             moves_scratch: Vec::new(),
             swap_rounds: SWAP_ROUNDS,
+            second_start: Some(SECOND_START_EXPONENT),
         }
     }
 }
@@ -603,6 +619,15 @@ impl Extractor {
     /// take none: a swap is a jump.
     pub fn set_swap_rounds(&mut self, rounds: usize) {
         self.swap_rounds = rounds;
+    }
+
+    /// A single map of at most [`SWAP_MAX_LIGHTS`] default lights also starts from the warp by
+    /// Y^`exponent` (default [`SECOND_START_EXPONENT`]), takes the same Lloyd steps and swap
+    /// rounds, and the start whose lights' diffuse error (estimated from the reduced map, as for
+    /// `--max-error`) is lower goes on to the final assignment (ALGORITHMS.md §4.2, "Two starts").
+    /// `None`: one start. Streams start once.
+    pub fn set_second_start(&mut self, exponent: Option<f32>) {
+        self.second_start = exponent;
     }
 
     /// Video mode, for a stream of frames of one scene (the daemon, the temporal evaluation): the
@@ -833,7 +858,7 @@ impl Extractor {
         let lights = if method == Method::Paper {
             self.assign_paper(image)
         } else {
-            let mut lights = self.assign_spherical(image);
+            let mut lights = self.assign_spherical(image, method == Method::Voronoi);
             // A cell's disc stays on its side of the horizon (ALGORITHMS.md §12).
             for l in &mut lights {
                 l.angular_radius = l.angular_radius.min(horizon_gap(l.to_light));
@@ -891,12 +916,22 @@ impl Extractor {
             SeedOrigin::Warp
         };
         if method == Method::Voronoi {
-            self.placement
-                .density(&image.luminance, n, &mut self.density);
-            self.dist.build(&self.density, image.side, image.side);
-        } else {
-            self.dist.build(&image.luminance, image.side, image.side);
+            self.warp_by(image, self.placement, n);
+            return;
         }
+        self.dist.build(&image.luminance, image.side, image.side);
+        self.warp_points(image, points);
+    }
+
+    /// The default's seeds: the first `n` fixed points warped by `placement`'s density.
+    fn warp_by(&mut self, image: &DomainImage, placement: Placement, n: usize) {
+        placement.density(&image.luminance, n, &mut self.density);
+        self.dist.build(&self.density, image.side, image.side);
+        self.warp_points(image, &progressive_points()[..n]);
+    }
+
+    /// Seeds at `points` warped by the distribution built last.
+    fn warp_points(&mut self, image: &DomainImage, points: &[glam::DVec2]) {
         self.seeds.clear();
         self.seeds.extend(
             points
@@ -906,7 +941,9 @@ impl Extractor {
     }
 
     /// Default method: spherical Voronoi cells of the seeds, lights at luminance-weighted centroids.
-    fn assign_spherical(&mut self, image: &DomainImage) -> Vec<Light> {
+    /// `may_restart`: the default's own seeds, which may take a second start; the inverse-CDF
+    /// baseline shares the rest but keeps its own warp.
+    fn assign_spherical(&mut self, image: &DomainImage, may_restart: bool) -> Vec<Light> {
         // A stream's later frames take one full-resolution Lloyd step each, from the last frame's
         // lights (the final assignment below): the half-resolution steps have a fixed point of
         // their own, and alternating the two kept the lights of a static scene moving 0.5–1.5° a
@@ -939,19 +976,31 @@ impl Extractor {
             refresh_half(image, &mut half, &mut self.half_is_current);
         }
         let warped = self.seeds.clone();
-        for _ in 0..steps {
-            let lights = if coarse {
-                self.assign_spherical_once(&half, true)
-            } else {
-                self.assign_spherical_once(image, false)
+        let steps_image = if coarse { &half } else { image };
+        let first = self.settle(steps_image, coarse, steps);
+        let n = self.seeds.len();
+        if let Some(exponent) = self.second_start
+            && may_restart
+            && self.seed_origin == SeedOrigin::Warp
+            && n <= SWAP_MAX_LIGHTS
+            && exponent != self.placement.exponent
+        {
+            // Two starts (ALGORITHMS.md §4.2): the Lloyd steps and swaps end in the fixed point
+            // nearest their start, and on a few maps the default's start lies in a poor one.
+            let check = IrradianceReference::from_domain_image_at(
+                steps_image,
+                CHECK_GRID,
+                error::fibonacci_sphere(CHECK_NORMALS),
+            );
+            let first_seeds = self.seeds.clone();
+            let placement = Placement {
+                exponent,
+                ..self.placement
             };
-            self.seed_at(&lights);
-        }
-        if self.seeds.len() <= SWAP_MAX_LIGHTS {
-            if coarse {
-                self.swap(&half, true);
-            } else {
-                self.swap(image, false);
+            self.warp_by(image, placement, n);
+            let second = self.settle(steps_image, coarse, steps);
+            if check.error(&first).rel_rms <= check.error(&second).rel_rms {
+                self.seeds = first_seeds;
             }
         }
         let mut lights = self.assign_spherical_once(image, false);
@@ -1044,12 +1093,12 @@ impl Extractor {
     /// |M_k| + |M_j| − |M_k + M_j| with its nearest neighbour j) to the lit texel farthest from the
     /// centroid of the cell of largest energy, takes one Lloyd step, and keeps the move if the total
     /// energy fell; a refused move is undone and the next-cheapest light tried.
-    fn swap(&mut self, image: &DomainImage, half: bool) {
+    fn swap(&mut self, image: &DomainImage, half: bool) -> Vec<Light> {
         let n = self.seeds.len();
-        if n < 3 {
-            return;
-        }
         let lights = self.assign_spherical_once(image, half);
+        if n < 3 {
+            return lights;
+        }
         self.seed_at(&lights);
         let mut lights = self.assign_spherical_once(image, half);
         let mut energy = self.kmeans_energy();
@@ -1099,6 +1148,22 @@ impl Extractor {
             }
         }
         self.seed_at(&lights);
+        lights
+    }
+
+    /// `steps` Lloyd steps from the current seeds on `image` (the half-resolution copy when
+    /// `half`), then, up to [`SWAP_MAX_LIGHTS`] lights, the swap rounds; the seeds are left at the
+    /// lights returned, those of the last assignment.
+    fn settle(&mut self, image: &DomainImage, half: bool, steps: usize) -> Vec<Light> {
+        let mut lights = Vec::new();
+        for _ in 0..steps {
+            lights = self.assign_spherical_once(image, half);
+            self.seed_at(&lights);
+        }
+        if self.seeds.len() <= SWAP_MAX_LIGHTS {
+            lights = self.swap(image, half);
+        }
+        lights
     }
 
     /// Video mode: each light moves from last frame's direction (its seed) toward its cell's
