@@ -1003,10 +1003,10 @@ impl Extractor {
                 self.seeds = first_seeds;
             }
         }
-        let mut lights = self.assign_spherical_once(image, false);
-        if self.seeds.len() > SWAP_MAX_LIGHTS && self.swap_rounds > 0 {
-            lights = self.split_brightest(image, lights);
+        if n > SWAP_MAX_LIGHTS && self.swap_rounds > 0 {
+            self.seed_split(image, coarse, &first);
         }
+        let lights = self.assign_spherical_once(image, false);
         let lights = self.repair_dead(image, lights);
         self.seeds = warped;
         self.half_image = half;
@@ -1034,42 +1034,70 @@ impl Extractor {
     }
 
     /// The split of a single map of more than [`SWAP_MAX_LIGHTS`] lights (ALGORITHMS.md §4.2,
-    /// "Split"), after the final assignment: the light cheapest to merge moves to the lit texel
-    /// farthest from the centroid of the brightest cell, the others to their lights, and the
-    /// full-resolution square is assigned again; kept if the total k-means energy fell. Point
-    /// lights err most where their cell is brightest once the rest is small: on a clear sky at 256
-    /// lights the sun's one light errs along its terminator, where two lights across its disc do
-    /// not, and the half-resolution swap rounds cannot see inside a disc that small.
-    fn split_brightest(&mut self, image: &DomainImage, lights: Vec<Light>) -> Vec<Light> {
+    /// "Split"), folded into the final assignment: from the last Lloyd step's cells (`lights`, on
+    /// the half-resolution square when `coarse`), the light cheapest to merge is re-seeded at the
+    /// full-resolution texel farthest from the centroid of the brightest cell. Point lights err
+    /// most where their cell is brightest once the rest is small: on a clear sky at 256 lights the
+    /// sun's one light errs along its terminator, where two lights across its disc do not, and a
+    /// half-resolution texel is too coarse to tell where inside the disc the second one goes.
+    fn seed_split(&mut self, image: &DomainImage, coarse: bool, lights: &[Light]) {
         let n = lights.len();
         let Some(c) = (0..n)
             .filter(|&c| self.accum[c].can_donate())
             .max_by(|&a, &b| self.accum[a].lum.total_cmp(&self.accum[b].lum))
         else {
-            return lights;
+            return;
         };
-        let Some(k) = self.cheapest_to_merge(&lights, &[c]) else {
-            return lights;
+        let Some(k) = self.cheapest_to_merge(lights, &[c]) else {
+            return;
         };
-        let Some((t, _)) = self.farthest_lit_texels(image, &[c], false)[0] else {
-            return lights;
+        // The cell's centroid is the same at either resolution: a half-resolution texel sums the
+        // moments of its four.
+        let centre = self.accum[c].weighted_dir.normalize_or_zero();
+        let side = image.side;
+        let mut best: Option<(f64, usize)> = None;
+        let mut consider = |t: usize| {
+            let y = image.luminance[t] as f64;
+            if y > 0.0 {
+                let score = y - Vec3::from_array(image.moment[t]).as_dvec3().dot(centre);
+                if best.is_none_or(|b| score > b.0) {
+                    best = Some((score, t));
+                }
+            }
         };
-        let Some(dir) = Vec3::from_array(image.moment[t]).try_normalize() else {
-            return lights;
-        };
-        let energy = self.kmeans_energy();
-        let (seeds_before, owner_before, accum_before) =
-            (self.seeds.clone(), self.owner.clone(), self.accum.clone());
-        self.seed_at(&lights);
-        self.seeds[k] = dir;
-        let trial = self.assign_spherical_once(image, false);
-        if self.kmeans_energy() < energy {
-            return trial;
+        if coarse {
+            let half_side = side / 2;
+            for (h, _) in self
+                .half_owner
+                .iter()
+                .enumerate()
+                .filter(|(_, o)| **o as usize == c)
+            {
+                let (i, j) = (2 * (h % half_side), 2 * (h / half_side));
+                for t in [
+                    j * side + i,
+                    j * side + i + 1,
+                    (j + 1) * side + i,
+                    (j + 1) * side + i + 1,
+                ] {
+                    consider(t);
+                }
+            }
+        } else {
+            for (t, _) in self
+                .owner
+                .iter()
+                .enumerate()
+                .filter(|(_, o)| **o as usize == c)
+            {
+                consider(t);
+            }
         }
-        self.seeds = seeds_before;
-        self.owner = owner_before;
-        self.accum = accum_before;
-        lights
+        if let Some((_, t)) = best
+            && let Some(dir) = Vec3::from_array(image.moment[t]).try_normalize()
+        {
+            self.seeds[k] = dir;
+        }
     }
 
     /// Moves each seed to its light's direction (a Lloyd step's re-seeding).
