@@ -504,6 +504,13 @@ fn max_f32(values: &[f32], floor: f32) -> f32 {
     lanes.iter().fold(tail, |m, &v| if v > m { v } else { m })
 }
 
+/// How far lit texel `t` lies from a cell's centroid direction `centre`, as its share of the
+/// cell's k-means energy, Y·(1 − cos) = Y − M·c (ALGORITHMS.md §4.2, "Swaps"); `None` when unlit.
+fn farness(image: &DomainImage, t: usize, centre: DVec3) -> Option<f64> {
+    let y = image.luminance[t] as f64;
+    (y > 0.0).then(|| y - Vec3::from_array(image.moment[t]).as_dvec3().dot(centre))
+}
+
 /// Per-light sums over its cell.
 #[derive(Clone, Copy, Debug, Default)]
 struct CellAccum {
@@ -1051,22 +1058,12 @@ impl Extractor {
         let Some(k) = self.cheapest_to_merge(lights, &[c]) else {
             return;
         };
-        // The cell's centroid is the same at either resolution: a half-resolution texel sums the
-        // moments of its four.
-        let centre = self.accum[c].weighted_dir.normalize_or_zero();
-        let side = image.side;
-        let mut best: Option<(f64, usize)> = None;
-        let mut consider = |t: usize| {
-            let y = image.luminance[t] as f64;
-            if y > 0.0 {
-                let score = y - Vec3::from_array(image.moment[t]).as_dvec3().dot(centre);
-                if best.is_none_or(|b| score > b.0) {
-                    best = Some((score, t));
-                }
-            }
-        };
-        if coarse {
-            let half_side = side / 2;
+        let farthest = if coarse {
+            // The cell's centroid is the same at either resolution: a half-resolution texel sums
+            // the moments of its four.
+            let centre = self.accum[c].weighted_dir.normalize_or_zero();
+            let (side, half_side) = (image.side, image.side / 2);
+            let mut best: Option<(f64, usize)> = None;
             for (h, _) in self
                 .half_owner
                 .iter()
@@ -1080,20 +1077,18 @@ impl Extractor {
                     (j + 1) * side + i,
                     (j + 1) * side + i + 1,
                 ] {
-                    consider(t);
+                    if let Some(score) = farness(image, t, centre)
+                        && best.is_none_or(|b| score > b.0)
+                    {
+                        best = Some((score, t));
+                    }
                 }
             }
+            best.map(|(_, t)| t)
         } else {
-            for (t, _) in self
-                .owner
-                .iter()
-                .enumerate()
-                .filter(|(_, o)| **o as usize == c)
-            {
-                consider(t);
-            }
-        }
-        if let Some((_, t)) = best
+            self.farthest_lit_texels(image, &[c], false)[0].map(|(t, _)| t)
+        };
+        if let Some(t) = farthest
             && let Some(dir) = Vec3::from_array(image.moment[t]).try_normalize()
         {
             self.seeds[k] = dir;
@@ -1120,13 +1115,11 @@ impl Extractor {
     /// 1.9 × the k-means floor). A round moves the light whose loss costs least (merge cost
     /// |M_k| + |M_j| − |M_k + M_j| with its nearest neighbour j) to the lit texel farthest from the
     /// centroid of the cell of largest energy, takes one Lloyd step, and keeps the move if the total
-    /// energy fell; a refused move is undone and the next-cheapest light tried.
+    /// energy fell; a refused move is undone and the next-cheapest light tried. Three lights or
+    /// more ([`settle`](Self::settle) calls it so).
     fn swap(&mut self, image: &DomainImage, half: bool) -> Vec<Light> {
         let n = self.seeds.len();
         let lights = self.assign_spherical_once(image, half);
-        if n < 3 {
-            return lights;
-        }
         self.seed_at(&lights);
         let mut lights = self.assign_spherical_once(image, half);
         let mut energy = self.kmeans_energy();
@@ -1179,16 +1172,16 @@ impl Extractor {
         lights
     }
 
-    /// `steps` Lloyd steps from the current seeds on `image` (the half-resolution copy when
-    /// `half`), then, up to [`SWAP_MAX_LIGHTS`] lights, the swap rounds; the seeds are left at the
-    /// lights returned, those of the last assignment.
+    /// `steps` (at least one) Lloyd steps from the current seeds on `image` (the half-resolution
+    /// copy when `half`), then, from 3 to [`SWAP_MAX_LIGHTS`] lights, the swap rounds; the seeds
+    /// are left at the lights returned, those of the last assignment.
     fn settle(&mut self, image: &DomainImage, half: bool, steps: usize) -> Vec<Light> {
         let mut lights = Vec::new();
         for _ in 0..steps {
             lights = self.assign_spherical_once(image, half);
             self.seed_at(&lights);
         }
-        if self.seeds.len() <= SWAP_MAX_LIGHTS {
+        if (3..=SWAP_MAX_LIGHTS).contains(&self.seeds.len()) {
             lights = self.swap(image, half);
         }
         lights
@@ -1310,12 +1303,13 @@ impl Extractor {
         let mut lit = vec![0usize; donors.len()];
         for (t, &k) in owner.iter().enumerate() {
             let i = slot[k as usize];
-            let y = image.luminance[t] as f64;
-            if i == usize::MAX || y <= 0.0 {
+            if i == usize::MAX {
                 continue;
             }
+            let Some(score) = farness(image, t, centres[i]) else {
+                continue;
+            };
             lit[i] += 1;
-            let score = y - Vec3::from_array(image.moment[t]).as_dvec3().dot(centres[i]);
             if best[i].is_none_or(|b| score > b.0) {
                 best[i] = Some((score, t));
             }
