@@ -3,6 +3,10 @@
 //! with `access_token`, parses LightSets and fills its table. Catches the page and the document
 //! drifting apart (a renamed field leaves the table empty).
 //!
+//! The page is watched over DevTools in real time: Chromium's virtual time (`--dump-dom` with a
+//! budget) does not wait for a WebSocket handshake, so on a slow machine it dumped the page
+//! before it had connected.
+//!
 //! Needs `chromium` (scripts/test.sh installs it and sets `VEMLIGHT_REQUIRE_BROWSER=1`, so CI
 //! always runs this); a plain `cargo test` without it skips with a note.
 
@@ -12,8 +16,16 @@ use common::{Killed, chromium};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-#[test]
-fn the_live_view_shows_streamed_lights() {
+/// What the test reads off the page: the status line, the title and the table's cells (null
+/// while the page is still loading).
+const PAGE_STATE: &str = "JSON.stringify(document.getElementById('status') && {
+    status: document.getElementById('status').textContent,
+    title: document.title,
+    cells: [...document.querySelectorAll('#info td')].map((td) => td.textContent),
+})";
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_live_view_shows_streamed_lights() {
     let Some(browser) = chromium::browser_or_skip() else {
         return;
     };
@@ -30,37 +42,40 @@ fn the_live_view_shows_streamed_lights() {
             start.elapsed() < Duration::from_secs(20),
             "the daemon did not come up"
         );
-        std::thread::sleep(Duration::from_millis(100));
+        tokio::time::sleep(Duration::from_millis(100)).await;
     }
     let profile = std::env::temp_dir().join(format!("vemlight-chromium-{}", std::process::id()));
-    let out = Command::new(browser)
-        .args(chromium::headless_args(&profile))
-        .args([
-            "--disable-gpu",
-            "--virtual-time-budget=5000",
-            "--dump-dom",
-            &format!("http://{addr}/?access_token=t0k"),
-        ])
-        .output()
-        .expect("runs chromium");
-    let _ = std::fs::remove_dir_all(&profile);
-    let dom = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "chromium failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let (chrome, mut cdp) =
+        chromium::launch(browser, &profile, &["--disable-gpu"], PAGE_STATE).await;
+    cdp.open(&format!("http://{addr}/?access_token=t0k")).await;
+
     // The script filled the table and the title from real LightSets.
-    assert!(dom.contains(">connected<"), "not connected: {dom}");
-    assert!(
-        dom.contains("<title>vemlight — 64 lights, seq "),
-        "no LightSet reached the page: {dom}"
-    );
+    let s = cdp
+        .wait_for("a LightSet on the page", Duration::from_secs(30), |s| {
+            s["status"] == "connected"
+                && s["title"]
+                    .as_str()
+                    .is_some_and(|t| t.starts_with("vemlight — 64 lights, seq "))
+        })
+        .await;
+    let cells: Vec<&str> = s["cells"]
+        .as_array()
+        .expect("cells")
+        .iter()
+        .filter_map(|c| c.as_str())
+        .collect();
     for cell in [
-        "<td>64 (voronoi, sphere domain)</td>",
-        "<td>synthetic:256x128</td>",
-        "<td>binomial, 9 taps, delay 133 ms</td>",
+        "64 (voronoi, sphere domain)",
+        "synthetic:256x128",
+        "binomial, 9 taps, delay 133 ms",
     ] {
-        assert!(dom.contains(cell), "the table lacks {cell}: {dom}");
+        assert!(cells.contains(&cell), "the table lacks {cell}: {s}");
     }
+    let problems = cdp.problems(|_| false);
+    assert!(
+        problems.is_empty(),
+        "the page reported errors: {problems:?}"
+    );
+    drop(chrome);
+    let _ = std::fs::remove_dir_all(&profile);
 }
