@@ -13,8 +13,14 @@ use super::light::Light;
 use glam::{DVec2, DVec3, Vec3};
 
 /// The fractions tried are k / `TILT_STEPS`, k = 0, 1, …, up to the first that does not lower the
-/// estimate.
+/// estimate by [`TILT_MIN_GAIN`].
 const TILT_STEPS: usize = 8;
+
+/// A step of the tilt is taken only if it lowers the estimated diffuse error by at least this
+/// share. The reference's bins are points too, with an excess of their own, and on turned maps
+/// the steps that gained less (0.1–5 % on apartment-f16.exr and studio.exr at 64 and 128 lights)
+/// raised the true error by up to 9 %; every step that gained more lowered it.
+const TILT_MIN_GAIN: f64 = 0.05;
 
 /// The direction of `d` (above the horizon) moved a fraction `a` of the way from its elevation
 /// toward the one whose sine is `floor_y`, its azimuth kept.
@@ -28,9 +34,9 @@ fn tilted(d: DVec3, floor_y: f64, a: f64) -> DVec3 {
     DVec3::new(h.x, y, h.y)
 }
 
-/// Tilts the lights above the horizon by the fraction of [`TILT_STEPS`] that gives the lowest
-/// estimated diffuse error on `check` (searched upward from 0, stopping at the first step that
-/// does not lower it), and returns that fraction. `floor_y[k]` is light k's cell's M_y/P.
+/// Tilts the lights above the horizon by a fraction in [`TILT_STEPS`]ths chosen on the estimated
+/// diffuse error at `check` (searched upward from 0, stopping at the first step that does not
+/// lower it by [`TILT_MIN_GAIN`]), and returns that fraction. `floor_y[k]` is light k's cell's M_y/P.
 /// Energies, ids and the lights below the horizon are untouched.
 pub(super) fn tilt_toward_horizon(
     lights: &mut [Light],
@@ -67,7 +73,7 @@ pub(super) fn tilt_toward_horizon(
         let a = k as f64 / TILT_STEPS as f64;
         let e = error(a);
         // A NaN estimate (it cannot arise from finite lights) stops the search as well.
-        if e.partial_cmp(&best.0) != Some(std::cmp::Ordering::Less) {
+        if e.partial_cmp(&(best.0 * (1.0 - TILT_MIN_GAIN))) != Some(std::cmp::Ordering::Less) {
             break;
         }
         best = (e, a);
