@@ -961,9 +961,10 @@ fn k_means_is_the_floor_and_vmlps_cuts_between_sources() {
 
 /// The tilt toward the horizon (ALGORITHMS.md §4.2, "Tilt"). On the overcast plaza at 32 lights
 /// each light of power P at its cell's centroid gives the open ground P/|M| of its cell's share,
-/// and the excesses add up (+1.2 %); the tilt takes about half of it off the floor while the
-/// diffuse error over the sphere falls too. On the low clear sun the estimate finds nothing to gain and
-/// the lights are those without the tilt, bit for bit. Energy and ids are never touched.
+/// and the excesses add up (+1.2 %); the tilt takes nearly all of it off the floor, without
+/// overshooting to a deficit, and here the diffuse error over the sphere falls too (the tilt may
+/// raise it by 10 % on the estimate). On the low clear sun the lights are those without the tilt.
+/// Energy and ids are never touched.
 #[test]
 fn the_tilt_takes_the_point_lights_excess_off_the_floor() {
     use vemlight::lights::error::map_emitters;
@@ -996,7 +997,7 @@ fn the_tilt_takes_the_point_lights_excess_off_the_floor() {
         "the untilted excess is {eo:+.4}: the case no longer tests the tilt"
     );
     assert!(
-        ew.abs() < 0.75 * eo,
+        ew.abs() < 0.25 * eo,
         "tilted excess {ew:+.4} against {eo:+.4}"
     );
     assert!(dw < dn, "diffuse {dw:.5} with the tilt, {dn:.5} without");
