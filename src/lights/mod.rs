@@ -326,6 +326,12 @@ const CHECK_NORMALS: usize = 128;
 /// and the floor rule's tilt left overcast's shadowed miss in place while raising studio's error.
 const TILT_MAX_LIGHTS: usize = CHECK_GRID * CHECK_GRID / 8;
 
+/// A light tilts only if its core's spread 1 − |M|/P (ALGORITHMS.md §12) is at least this share
+/// of its whole cell's (the spread goes as the radius squared: the core at least 0.7 of the
+/// cell's radius). A single light on an 8° disc in a dim sky, a core a third of its cell's spread,
+/// otherwise moved 0.3° off the disc; on tests/data, shares of 0.25 and 0.5 tilt the same lights.
+const TILT_CORE_SHARE: f64 = 0.5;
+
 /// The binned reference a single map's choices are made by (the two starts, the tilt): the
 /// domain square (its half-resolution copy, the same bins' energies and moments from a quarter of
 /// the texels) binned [`CHECK_GRID`]² at [`CHECK_NORMALS`] normals.
@@ -1044,16 +1050,20 @@ impl Extractor {
         let mut lights = self.repair_dead(image, lights);
         if self.tilt && may_restart && self.seed_origin == SeedOrigin::Warp && n <= TILT_MAX_LIGHTS
         {
-            // Each cell's M_y/P: the elevation's sine at which its light gives a floor exactly
-            // the cell's first moment (ALGORITHMS.md §4.2, "Tilt").
-            let floor_y: Vec<f64> = self.accum[..lights.len()]
+            // Each light's target, the sine M_y/P at which it gives a floor exactly its cell's
+            // first moment (ALGORITHMS.md §4.2, "Tilt"); none for a light below the horizon, and
+            // none for a compact core in a wider, dimmer cell (a sun in its glare, a lamp): its
+            // shadows' direction is its core's, and the cell's excess is its halo's.
+            let targets: Vec<Option<f64>> = self.accum[..lights.len()]
                 .iter()
-                .map(|a| {
-                    if a.lum > 0.0 {
-                        a.weighted_dir.y / a.lum
-                    } else {
-                        0.0
-                    }
+                .zip(&lights)
+                .map(|(a, l)| {
+                    let spread = |p: f64, m: DVec3| 1.0 - m.length() / p;
+                    let wide = a.lum > 0.0
+                        && a.core_lum > 0.0
+                        && spread(a.core_lum, a.core_moment)
+                            >= TILT_CORE_SHARE * spread(a.lum, a.weighted_dir);
+                    (wide && l.to_light[1] > 0.0).then(|| a.weighted_dir.y / a.lum)
                 })
                 .collect();
             // The map's own floor irradiance ∫ L·max(0, ω_y) dω, as a share of its energy (from
@@ -1066,9 +1076,16 @@ impl Extractor {
                     (u + m[1].max(0.0) as f64, a + y as f64)
                 });
             let energy: f64 = lights.iter().map(|l| l.luminance()).sum();
-            let floor = if all > 0.0 { up / all * energy } else { 0.0 };
+            let mut floor = if all > 0.0 { up / all * energy } else { 0.0 };
+            // A light that stays answers for its own excess over its cell's floor P·M_y/P: the
+            // others are not moved to make up for it.
+            for ((a, l), t) in self.accum[..lights.len()].iter().zip(&lights).zip(&targets) {
+                if t.is_none() && l.to_light[1] > 0.0 && a.lum > 0.0 {
+                    floor += l.luminance() * (l.to_light[1] as f64 - a.weighted_dir.y / a.lum);
+                }
+            }
             let check = check.get_or_insert_with(|| check_reference(steps_image));
-            tilt::tilt_toward_horizon(&mut lights, &floor_y, floor, check);
+            tilt::tilt_toward_horizon(&mut lights, &targets, floor, check);
         }
         self.seeds = warped;
         self.half_image = half;

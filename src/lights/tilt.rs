@@ -35,36 +35,36 @@ fn tilted(d: DVec3, floor_y: f64, a: f64) -> DVec3 {
     DVec3::new(h.x, y, h.y)
 }
 
-/// Tilts the lights above the horizon toward their cells' floor elevations and returns the
-/// fraction taken (0: none). `floor_y[k]` is light k's cell's M_y/P; `floor` is the map's
-/// ∫ L·max(0, ω_y) dω in the lights' units, the floor a point set should give. The fraction is the
-/// largest k/[`TILT_STEPS`] at or below the one that makes the lights' floor equal `floor` whose
-/// estimated diffuse error at `check` is within [`TILT_DIFFUSE_ALLOWANCE`] of the untilted one.
-/// Energies, ids and the lights below the horizon are untouched.
+/// Tilts the lights that have a target toward it and returns the fraction taken (0: none).
+/// `targets[k]` is light k's cell's M_y/P where it may move (above the horizon, not a compact
+/// core), `None` where it stays; `floor` is the map's ∫ L·max(0, ω_y) dω in the lights' units,
+/// the floor a point set should give. The fraction is the largest k/[`TILT_STEPS`] at or below
+/// the one that makes the lights' floor equal `floor` whose estimated diffuse error at `check` is
+/// within [`TILT_DIFFUSE_ALLOWANCE`] of the untilted one. Energies and ids are untouched.
 pub(super) fn tilt_toward_horizon(
     lights: &mut [Light],
-    floor_y: &[f64],
+    targets: &[Option<f64>],
     floor: f64,
     check: &IrradianceReference,
 ) -> f64 {
-    debug_assert_eq!(lights.len(), floor_y.len());
-    // The lights below the horizon stay: their irradiance at the normals is summed once.
-    let below: Vec<(Vec3, f32)> = lights
+    debug_assert_eq!(lights.len(), targets.len());
+    // The lights that stay: their irradiance at the normals is summed once.
+    let staying: Vec<(Vec3, f32)> = lights
         .iter()
-        .filter(|l| l.to_light[1] <= 0.0)
-        .map(|l| (Vec3::from_array(l.to_light), l.luminance() as f32))
+        .zip(targets)
+        .filter(|(_, t)| t.is_none())
+        .map(|(l, _)| (Vec3::from_array(l.to_light), l.luminance() as f32))
         .collect();
-    let fixed = Emitters::new(&below).irradiance_at(check.normals());
-    let above: Vec<(DVec3, f64, f32)> = lights
+    let fixed = Emitters::new(&staying).irradiance_at(check.normals());
+    let moving: Vec<(DVec3, f64, f32)> = lights
         .iter()
-        .zip(floor_y)
-        .filter(|(l, _)| l.to_light[1] > 0.0)
-        .map(|(l, &fy)| (l.dir(), fy, l.luminance() as f32))
+        .zip(targets)
+        .filter_map(|(l, t)| t.map(|t| (l.dir(), t, l.luminance() as f32)))
         .collect();
     let error = |a: f64| {
-        let points: Vec<(Vec3, f32)> = above
+        let points: Vec<(Vec3, f32)> = moving
             .iter()
-            .map(|&(d, fy, e)| (tilted(d, fy, a).as_vec3(), e))
+            .map(|&(d, t, e)| (tilted(d, t, a).as_vec3(), e))
             .collect();
         let mut estimate = Emitters::new(&points).irradiance_at(check.normals());
         for (e, f) in estimate.iter_mut().zip(&fixed) {
@@ -72,19 +72,29 @@ pub(super) fn tilt_toward_horizon(
         }
         relative_error(&estimate, check.truth()).rel_rms
     };
-    let e0 = error(0.0);
-    // The floor's bias Σ_above P·sin e − F is linear in the fraction: b(a) = b0 + a (b1 − b0).
-    let bias = |sines: &dyn Fn(&(DVec3, f64, f32)) -> f64| {
-        above.iter().map(|l| sines(l) * l.2 as f64).sum::<f64>() - floor
+    // The floor's bias Σ P·max(0, sin e) − F, linear in the fraction while the moving lights stay
+    // above the horizon (they only descend toward it): b(a) = b0 + a (b1 − b0).
+    let floor_at = |a: f64| -> f64 {
+        let fixed: f64 = lights
+            .iter()
+            .zip(targets)
+            .filter(|(_, t)| t.is_none())
+            .map(|(l, _)| l.luminance() * (l.to_light[1] as f64).max(0.0))
+            .sum();
+        let moved: f64 = moving
+            .iter()
+            .map(|&(d, t, e)| e as f64 * tilted(d, t, a).y.max(0.0))
+            .sum();
+        fixed + moved - floor
     };
-    let b0 = bias(&|l| l.0.y);
-    let b1 = bias(&|l| l.1.clamp(0.0, 1.0));
+    let (b0, b1) = (floor_at(0.0), floor_at(1.0));
     let mut chosen = 0.0;
     if b0 > 0.0 && b1 < b0 {
         // The largest eighth that does not overshoot a zero bias, then smaller ones, until one
         // keeps the estimated diffuse error within the allowance.
         let a_zero = (b0 / (b0 - b1)).min(1.0);
         let k_max = (a_zero * TILT_STEPS as f64).floor() as usize;
+        let e0 = error(0.0);
         for k in (1..=k_max).rev() {
             let a = k as f64 / TILT_STEPS as f64;
             // A NaN estimate (it cannot arise from finite lights) fails the comparison.
@@ -95,9 +105,9 @@ pub(super) fn tilt_toward_horizon(
         }
     }
     if chosen > 0.0 {
-        for (l, &fy) in lights.iter_mut().zip(floor_y) {
-            if l.to_light[1] > 0.0 {
-                l.to_light = tilted(l.dir(), fy, chosen).as_vec3().to_array();
+        for (l, t) in lights.iter_mut().zip(targets) {
+            if let Some(t) = t {
+                l.to_light = tilted(l.dir(), *t, chosen).as_vec3().to_array();
             }
         }
     }
@@ -123,5 +133,61 @@ mod tests {
         }
         // The zenith has no azimuth to keep: left alone.
         assert_eq!(tilted(DVec3::Y, 0.5, 1.0), DVec3::Y);
+    }
+
+    /// Four lights at 45° over a uniform upper hemisphere, each said to give a floor of 0.5
+    /// (M_y/P): the fraction taken never overshoots the floor asked for, and a floor the lights
+    /// already fall short of, or a light without a target, moves nothing.
+    #[test]
+    fn the_tilt_stops_at_the_floor_and_moves_only_lights_with_a_target() {
+        let sky: Vec<(Vec3, f32)> = super::super::error::fibonacci_sphere(4096)
+            .into_iter()
+            .filter(|d| d.y > 0.0)
+            .map(|d| (d.as_vec3(), 1.0))
+            .collect();
+        let check = IrradianceReference::from_emitters(&sky);
+        let s = std::f32::consts::FRAC_1_SQRT_2;
+        let lights: Vec<Light> = (0..4)
+            .map(|k| {
+                let phi = k as f32 * std::f32::consts::FRAC_PI_2;
+                Light {
+                    id: k,
+                    to_light: [s * phi.cos(), s, s * phi.sin()],
+                    irradiance: [1.0; 3],
+                    solid_angle: 1.0,
+                    angular_radius: 0.3,
+                    shadowed: None,
+                }
+            })
+            .collect();
+        let floor_of = |ls: &[Light]| -> f64 {
+            ls.iter()
+                .map(|l| l.luminance() * (l.to_light[1] as f64).max(0.0))
+                .sum()
+        };
+        let targets = vec![Some(0.5); 4];
+        // Halfway to the targets gives this floor: at most a half may be taken.
+        let half = floor_of(&lights) - 4.0 * lights[0].luminance() * (s as f64 - 0.5) / 2.0;
+        for floor in [half, half + 0.01] {
+            let mut tilted_set = lights.clone();
+            let a = tilt_toward_horizon(&mut tilted_set, &targets, floor, &check);
+            // The lights descending toward a uniform sky's floor lower the estimate: a tilt is
+            // taken, the largest eighth that stays at or above the floor.
+            assert!(a > 0.0 && a <= 0.5 + 1e-12, "took {a}");
+            assert!(floor_of(&tilted_set) >= floor - 1e-6, "overshot the floor");
+            for (t, l) in tilted_set.iter().zip(&lights) {
+                assert_eq!((t.id, t.irradiance), (l.id, l.irradiance));
+            }
+        }
+        // A floor above what the lights give: no tilt.
+        let mut same = lights.clone();
+        let above = floor_of(&lights) + 0.1;
+        assert_eq!(tilt_toward_horizon(&mut same, &targets, above, &check), 0.0);
+        assert_eq!(same, lights);
+        // Lights without a target stay, whatever the floor.
+        let mut same = lights.clone();
+        let none = vec![None; 4];
+        assert_eq!(tilt_toward_horizon(&mut same, &none, half, &check), 0.0);
+        assert_eq!(same, lights);
     }
 }
