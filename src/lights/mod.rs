@@ -1050,22 +1050,6 @@ impl Extractor {
         let mut lights = self.repair_dead(image, lights);
         if self.tilt && may_restart && self.seed_origin == SeedOrigin::Warp && n <= TILT_MAX_LIGHTS
         {
-            // Each light's target, the sine M_y/P at which it gives a floor exactly its cell's
-            // first moment (ALGORITHMS.md §4.2, "Tilt"); none for a light below the horizon, and
-            // none for a compact core in a wider, dimmer cell (a sun in its glare, a lamp): its
-            // shadows' direction is its core's, and the cell's excess is its halo's.
-            let targets: Vec<Option<f64>> = self.accum[..lights.len()]
-                .iter()
-                .zip(&lights)
-                .map(|(a, l)| {
-                    let spread = |p: f64, m: DVec3| 1.0 - m.length() / p;
-                    let wide = a.lum > 0.0
-                        && a.core_lum > 0.0
-                        && spread(a.core_lum, a.core_moment)
-                            >= TILT_CORE_SHARE * spread(a.lum, a.weighted_dir);
-                    (wide && l.to_light[1] > 0.0).then(|| a.weighted_dir.y / a.lum)
-                })
-                .collect();
             // The map's own floor irradiance ∫ L·max(0, ω_y) dω, as a share of its energy (from
             // the texels' moments; the half-size image holds means), in the lights' units.
             let (up, all) = steps_image
@@ -1077,15 +1061,65 @@ impl Extractor {
                 });
             let energy: f64 = lights.iter().map(|l| l.luminance()).sum();
             let mut floor = if all > 0.0 { up / all * energy } else { 0.0 };
-            // A light that stays answers for its own excess over its cell's floor P·M_y/P: the
-            // others are not moved to make up for it.
-            for ((a, l), t) in self.accum[..lights.len()].iter().zip(&lights).zip(&targets) {
-                if t.is_none() && l.to_light[1] > 0.0 && a.lum > 0.0 {
+            // The lights that may move: above the horizon, and not a compact core in a wider,
+            // dimmer cell (a sun in its glare, a lamp), whose shadows' direction is its core's
+            // and whose cell's excess is its halo's. One that stays answers for its own excess
+            // over its cell's floor M_y: the others do not move to make up for it.
+            let mut movable = vec![false; lights.len()];
+            for ((a, l), m) in self.accum[..lights.len()]
+                .iter()
+                .zip(&lights)
+                .zip(&mut movable)
+            {
+                if a.lum <= 0.0 || l.to_light[1] <= 0.0 {
+                    continue;
+                }
+                let spread = |p: f64, m: DVec3| 1.0 - m.length() / p;
+                *m = a.core_lum > 0.0
+                    && spread(a.core_lum, a.core_moment)
+                        >= TILT_CORE_SHARE * spread(a.lum, a.weighted_dir);
+                if !*m {
                     floor += l.luminance() * (l.to_light[1] as f64 - a.weighted_dir.y / a.lum);
                 }
             }
             let check = check.get_or_insert_with(|| check_reference(steps_image));
-            tilt::tilt_toward_horizon(&mut lights, &targets, floor, check);
+            if tilt::floor_bias(&lights, floor) > 0.0 {
+                // Too much floor: each light descends toward M_y/P, where a point of power P
+                // gives a floor exactly its cell's first moment (ALGORITHMS.md §4.2, "Tilt").
+                let targets: Vec<Option<f64>> = self.accum[..lights.len()]
+                    .iter()
+                    .zip(&movable)
+                    .map(|(a, &m)| m.then(|| a.weighted_dir.y / a.lum))
+                    .collect();
+                tilt::tilt_toward_floor(
+                    &mut lights,
+                    &targets,
+                    floor,
+                    tilt::DESCENT_ALLOWANCE,
+                    check,
+                );
+            } else {
+                // Too little: the lights of cells across the horizon rise toward G/P, their
+                // cell's own floor G = Σ max(0, m_y) over its texels (the last full-resolution
+                // owners).
+                let mut g = vec![0.0f64; lights.len()];
+                for (t, &k) in self.owner.iter().enumerate() {
+                    if let Some(gk) = g.get_mut(k as usize) {
+                        *gk += image.moment[t][1].max(0.0) as f64;
+                    }
+                }
+                let targets: Vec<Option<f64>> = self.accum[..lights.len()]
+                    .iter()
+                    .zip(&g)
+                    .zip(&movable)
+                    .zip(&lights)
+                    .map(|(((a, gk), &m), l)| {
+                        let t = gk / a.lum;
+                        (m && t > l.to_light[1] as f64).then_some(t)
+                    })
+                    .collect();
+                tilt::tilt_toward_floor(&mut lights, &targets, floor, tilt::RISE_ALLOWANCE, check);
+            }
         }
         self.seeds = warped;
         self.half_image = half;
