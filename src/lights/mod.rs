@@ -1050,80 +1050,88 @@ impl Extractor {
         let mut lights = self.repair_dead(image, lights);
         if self.tilt && may_restart && self.seed_origin == SeedOrigin::Warp && n <= TILT_MAX_LIGHTS
         {
-            // The map's own floor irradiance ∫ L·max(0, ω_y) dω, as a share of its energy (from
-            // the texels' moments; the half-size image holds means), in the lights' units.
-            let (up, all) = steps_image
-                .moment
-                .iter()
-                .zip(&steps_image.luminance)
-                .fold((0.0f64, 0.0f64), |(u, a), (m, &y)| {
-                    (u + m[1].max(0.0) as f64, a + y as f64)
-                });
-            let energy: f64 = lights.iter().map(|l| l.luminance()).sum();
-            let mut floor = if all > 0.0 { up / all * energy } else { 0.0 };
-            // The lights that may move: above the horizon, and not a compact core in a wider,
-            // dimmer cell (a sun in its glare, a lamp), whose shadows' direction is its core's
-            // and whose cell's excess is its halo's. One that stays answers for its own excess
-            // over its cell's floor M_y: the others do not move to make up for it.
-            let mut movable = vec![false; lights.len()];
-            for ((a, l), m) in self.accum[..lights.len()]
-                .iter()
-                .zip(&lights)
-                .zip(&mut movable)
-            {
-                if a.lum <= 0.0 || l.to_light[1] <= 0.0 {
-                    continue;
-                }
-                let spread = |p: f64, m: DVec3| 1.0 - m.length() / p;
-                *m = a.core_lum > 0.0
-                    && spread(a.core_lum, a.core_moment)
-                        >= TILT_CORE_SHARE * spread(a.lum, a.weighted_dir);
-                if !*m {
-                    floor += l.luminance() * (l.to_light[1] as f64 - a.weighted_dir.y / a.lum);
-                }
-            }
             let check = check.get_or_insert_with(|| check_reference(steps_image));
-            if tilt::floor_bias(&lights, floor) > 0.0 {
-                // Too much floor: each light descends toward M_y/P, where a point of power P
-                // gives a floor exactly its cell's first moment (ALGORITHMS.md §4.2, "Tilt").
-                let targets: Vec<Option<f64>> = self.accum[..lights.len()]
-                    .iter()
-                    .zip(&movable)
-                    .map(|(a, &m)| m.then(|| a.weighted_dir.y / a.lum))
-                    .collect();
-                tilt::tilt_toward_floor(
-                    &mut lights,
-                    &targets,
-                    floor,
-                    tilt::DESCENT_ALLOWANCE,
-                    check,
-                );
-            } else {
-                // Too little: the lights of cells across the horizon rise toward G/P, their
-                // cell's own floor G = Σ max(0, m_y) over its texels (the last full-resolution
-                // owners).
-                let mut g = vec![0.0f64; lights.len()];
-                for (t, &k) in self.owner.iter().enumerate() {
-                    if let Some(gk) = g.get_mut(k as usize) {
-                        *gk += image.moment[t][1].max(0.0) as f64;
-                    }
-                }
-                let targets: Vec<Option<f64>> = self.accum[..lights.len()]
-                    .iter()
-                    .zip(&g)
-                    .zip(&movable)
-                    .zip(&lights)
-                    .map(|(((a, gk), &m), l)| {
-                        let t = gk / a.lum;
-                        (m && t > l.to_light[1] as f64).then_some(t)
-                    })
-                    .collect();
-                tilt::tilt_toward_floor(&mut lights, &targets, floor, tilt::RISE_ALLOWANCE, check);
-            }
+            self.tilt_toward_floor(image, steps_image, &mut lights, check);
         }
         self.seeds = warped;
         self.half_image = half;
         lights
+    }
+
+    /// The tilt of a single map's lights toward the floor it should give (ALGORITHMS.md §4.2,
+    /// "Tilt"): down toward M_y/P where they give the open ground too much, up toward their
+    /// cell's own floor G/P where cells across the horizon leave it too little. Reads the final
+    /// assignment's cells (`accum`, `owner`); energies and ids are untouched.
+    fn tilt_toward_floor(
+        &self,
+        image: &DomainImage,
+        steps_image: &DomainImage,
+        lights: &mut [Light],
+        check: &IrradianceReference,
+    ) {
+        // The map's own floor irradiance ∫ L·max(0, ω_y) dω, as a share of its energy (from
+        // the texels' moments; the half-size image holds means), in the lights' units.
+        let (up, all) = steps_image
+            .moment
+            .iter()
+            .zip(&steps_image.luminance)
+            .fold((0.0f64, 0.0f64), |(u, a), (m, &y)| {
+                (u + m[1].max(0.0) as f64, a + y as f64)
+            });
+        let energy: f64 = lights.iter().map(|l| l.luminance()).sum();
+        let mut floor = if all > 0.0 { up / all * energy } else { 0.0 };
+        // The lights that may move: above the horizon, and not a compact core in a wider,
+        // dimmer cell (a sun in its glare, a lamp), whose shadows' direction is its core's
+        // and whose cell's excess is its halo's. One that stays answers for its own excess
+        // over its cell's floor M_y: the others do not move to make up for it.
+        let mut movable = vec![false; lights.len()];
+        for ((a, l), m) in self.accum[..lights.len()]
+            .iter()
+            .zip(lights.iter())
+            .zip(&mut movable)
+        {
+            if a.lum <= 0.0 || l.to_light[1] <= 0.0 {
+                continue;
+            }
+            let spread = |p: f64, m: DVec3| 1.0 - m.length() / p;
+            *m = a.core_lum > 0.0
+                && spread(a.core_lum, a.core_moment)
+                    >= TILT_CORE_SHARE * spread(a.lum, a.weighted_dir);
+            if !*m {
+                floor += l.luminance() * (l.to_light[1] as f64 - a.weighted_dir.y / a.lum);
+            }
+        }
+        if tilt::floor_bias(lights, floor) > 0.0 {
+            // Too much floor: each light descends toward M_y/P, where a point of power P
+            // gives a floor exactly its cell's first moment (ALGORITHMS.md §4.2, "Tilt").
+            let targets: Vec<Option<f64>> = self.accum[..lights.len()]
+                .iter()
+                .zip(&movable)
+                .map(|(a, &m)| m.then(|| a.weighted_dir.y / a.lum))
+                .collect();
+            tilt::tilt_toward_floor(lights, &targets, floor, tilt::DESCENT_ALLOWANCE, check);
+        } else {
+            // Too little: the lights of cells across the horizon rise toward G/P, their
+            // cell's own floor G = Σ max(0, m_y) over its texels (the last full-resolution
+            // owners).
+            let mut g = vec![0.0f64; lights.len()];
+            for (t, &k) in self.owner.iter().enumerate() {
+                if let Some(gk) = g.get_mut(k as usize) {
+                    *gk += image.moment[t][1].max(0.0) as f64;
+                }
+            }
+            let targets: Vec<Option<f64>> = self.accum[..lights.len()]
+                .iter()
+                .zip(&g)
+                .zip(&movable)
+                .zip(lights.iter())
+                .map(|(((a, gk), &m), l)| {
+                    let t = gk / a.lum;
+                    (m && t > l.to_light[1] as f64).then_some(t)
+                })
+                .collect();
+            tilt::tilt_toward_floor(lights, &targets, floor, tilt::RISE_ALLOWANCE, check);
+        }
     }
 
     /// The light, not one of `skip`, whose loss costs least: its merge cost with its nearest
