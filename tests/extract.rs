@@ -13,6 +13,15 @@ use vemlight::sampling::Resampler;
 
 const METHODS: [Method; 6] = Method::ALL;
 
+/// One of the eval's synthetic hard skies (`vemlight::eval::scenes::hard_skies`) by name.
+fn hard_sky(name: &str) -> EnvMap {
+    vemlight::eval::scenes::hard_skies(1024)
+        .into_iter()
+        .find(|(n, _)| n == name)
+        .unwrap_or_else(|| panic!("no hard sky {name}"))
+        .1
+}
+
 fn opts(lights: usize, domain: Domain, method: Method) -> ExtractOptions {
     ExtractOptions {
         lights,
@@ -668,10 +677,7 @@ fn a_disc_source_gives_a_light_of_its_radius() {
         );
         assert!(brightest.dir().angle_between(centre).to_degrees() < 0.2);
     }
-    let (_, sky) = vemlight::eval::scenes::hard_skies(1024)
-        .into_iter()
-        .find(|(n, _)| n == "sky-high-clear")
-        .unwrap();
+    let sky = hard_sky("sky-high-clear");
     for n in [16, 64, 256] {
         let out = Extractor::new().extract(&sky, &opts(n, Domain::Sphere, Method::Voronoi));
         let sun = out
@@ -839,10 +845,7 @@ fn the_default_is_near_the_k_means_floor_on_every_map() {
 /// still needs the split).
 #[test]
 fn a_low_clear_sun_at_256_lights_is_near_the_k_means_floor() {
-    let (_, sky) = vemlight::eval::scenes::hard_skies(1024)
-        .into_iter()
-        .find(|(name, _)| name == "sky-low-clear")
-        .expect("the low clear sky");
+    let sky = hard_sky("sky-low-clear");
     let reference = IrradianceReference::from_map(&sky, Domain::Sphere);
     let err = |ex: &mut Extractor, m| {
         reference
@@ -869,11 +872,7 @@ fn a_low_clear_sun_at_256_lights_is_near_the_k_means_floor() {
 /// so that the case keeps testing it.
 #[test]
 fn two_starts_keep_16_lights_near_the_k_means_floor() {
-    let sky = vemlight::eval::scenes::hard_skies(1024)
-        .into_iter()
-        .find(|(name, _)| name == "sky-high-hazy-clouds")
-        .expect("the high hazy sky")
-        .1;
+    let sky = hard_sky("sky-high-hazy-clouds");
     let mut worst_without = 0.0f64;
     for (name, map) in [
         ("night.exr", load("night.exr")),
@@ -1017,11 +1016,7 @@ fn the_tilt_takes_the_point_lights_excess_off_the_floor() {
         }
     }
 
-    let sun = vemlight::eval::scenes::hard_skies(1024)
-        .into_iter()
-        .find(|(name, _)| name == "sky-low-clear")
-        .expect("the low clear sun")
-        .1;
+    let sun = hard_sky("sky-low-clear");
     assert_eq!(
         Extractor::new().extract(&sun, &o).lights,
         plain.extract(&sun, &o).lights,
@@ -1036,11 +1031,7 @@ fn the_tilt_takes_the_point_lights_excess_off_the_floor() {
 /// horizon move, only up; energy and ids are never touched.
 #[test]
 fn the_tilt_raises_lights_where_the_floor_falls_short() {
-    let sun = vemlight::eval::scenes::hard_skies(1024)
-        .into_iter()
-        .find(|(name, _)| name == "sky-low-clear")
-        .expect("the low clear sun")
-        .1;
+    let sun = hard_sky("sky-low-clear");
     let o = opts(16, Domain::Sphere, Method::Voronoi);
     let mut plain = Extractor::new();
     plain.set_tilt(false);

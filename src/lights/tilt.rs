@@ -92,22 +92,19 @@ pub(super) fn tilt_toward_floor(
         }
         relative_error(&estimate, check.truth()).rel_rms
     };
-    // The floor's bias Σ P·max(0, sin e) − F, linear in the fraction while the moving lights stay
-    // above the horizon: b(a) = b0 + a (b1 − b0).
-    let floor_at = |a: f64| -> f64 {
-        let fixed: f64 = lights
+    // The floor's bias Σ P·max(0, sin e) − F is linear in the fraction while the moving lights
+    // stay above the horizon: b(a) = b0 + a (b1 − b0).
+    let b0 = floor_bias(lights, floor);
+    let b1 = b0
+        + lights
             .iter()
             .zip(targets)
-            .filter(|(_, t)| t.is_none())
-            .map(|(l, _)| l.luminance() * (l.to_light[1] as f64).max(0.0))
-            .sum();
-        let moved: f64 = moving
-            .iter()
-            .map(|&(d, t, e)| e as f64 * tilted(d, t, a).y.max(0.0))
-            .sum();
-        fixed + moved - floor
-    };
-    let (b0, b1) = (floor_at(0.0), floor_at(1.0));
+            .filter_map(|(l, t)| t.map(|t| (l, t)))
+            .map(|(l, t)| {
+                let d = l.dir();
+                l.luminance() * (tilted(d, t, 1.0).y.max(0.0) - d.y.max(0.0))
+            })
+            .sum::<f64>();
     let mut chosen = 0.0;
     if (b0 > 0.0 && b1 < b0) || (b0 < 0.0 && b1 > b0) {
         // The largest eighth that does not overshoot a zero bias, then smaller ones, until one
@@ -180,11 +177,7 @@ mod tests {
                 }
             })
             .collect();
-        let floor_of = |ls: &[Light]| -> f64 {
-            ls.iter()
-                .map(|l| l.luminance() * (l.to_light[1] as f64).max(0.0))
-                .sum()
-        };
+        let floor_of = |ls: &[Light]| floor_bias(ls, 0.0);
         let targets = vec![Some(0.5); 4];
         // Halfway to the targets gives this floor: at most a half may be taken.
         let half = floor_of(&lights) - 4.0 * lights[0].luminance() * (s as f64 - 0.5) / 2.0;
