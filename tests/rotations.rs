@@ -13,8 +13,9 @@ use vemlight::lights::error::IrradianceReference;
 use vemlight::lights::{ExtractOptions, Extractor, Method};
 use vemlight::mapping::Domain;
 
-/// Every case prints its ratio; the worst is named. The bound is loose (the worst is 1.41 ×
-/// where the target is 1.25): it catches a placement that falls apart on turned maps.
+/// Every case prints its ratio; the worst is named. The bounds are loose (the worst is 1.36 ×
+/// where the target is 1.25, two cases over it): they catch a placement that falls apart on
+/// turned maps.
 #[test]
 #[ignore]
 fn rotation_table() {
@@ -61,5 +62,6 @@ fn rotation_table() {
             .collect::<Vec<_>>()
             .join(", ")
     );
-    assert!(rows[0].0 <= 1.5, "worst {:.3}: {}", rows[0].0, rows[0].1);
+    assert!(rows[0].0 <= 1.45, "worst {:.3}: {}", rows[0].0, rows[0].1);
+    assert!(over <= 3, "{over} cases over 1.25 × k-means");
 }

@@ -212,7 +212,7 @@ pub fn frontier(
     let mut out = Vec::new();
     let mut ex = Extractor::new();
     // Each row is its placement alone: the default's second start (Y^½) would mix one in.
-    ex.set_second_start(None);
+    ex.set_other_starts(false);
     for placement in placements() {
         ex.set_placement(placement);
         for ((name, map), truth) in maps.iter().zip(truths) {

@@ -241,9 +241,9 @@ pub struct Extractor {
     moves_scratch: Vec<f32>,
     /// Swap rounds of a single map's Lloyd steps (see [`set_swap_rounds`](Self::set_swap_rounds)).
     swap_rounds: usize,
-    /// The exponent of a single map's second start (see
-    /// [`set_second_start`](Self::set_second_start)); `None`: one start.
-    second_start: Option<f32>,
+    /// Whether a single map also starts from the warps of [`other_starts`] (see
+    /// [`set_other_starts`](Self::set_other_starts)).
+    other_starts: bool,
     /// Whether a single map's lights are tilted toward the horizon ([`Extractor::set_tilt`]).
     tilt: bool,
 }
@@ -308,11 +308,42 @@ pub const SWAP_ROUNDS: usize = 4;
 /// within 1.1 × the k-means floor at 256 lights without them) and a round costs the most.
 pub const SWAP_MAX_LIGHTS: usize = 64;
 
-/// The density exponent of a single map's second start (ALGORITHMS.md §4.2, "Two starts"): Y^½,
-/// the density converged k-means places its centres by, beside the default's Y^0.625.
+/// The density exponent of a single map's second start (ALGORITHMS.md §4.2, "Starts"): Y^½, the
+/// density converged k-means places its centres by, beside the default's Y^0.625.
 pub const SECOND_START_EXPONENT: f32 = 0.5;
 
-/// The diffuse error that decides between two starts is estimated from the map binned into
+/// Two more starts, one on each side of the first two, up to [`MORE_STARTS_MAX_LIGHTS`] lights
+/// (ALGORITHMS.md §4.2, "Starts").
+pub const MORE_START_EXPONENTS: [f32; 2] = [0.375, 0.75];
+
+/// The most lights that take [`MORE_START_EXPONENTS`]: the estimate that chooses between starts
+/// has at least 32 of its [`CHECK_GRID`]² bins per light there. At 64 lights (16 bins a light) a
+/// third start lowered the median error but twice chose a start that was 1.3 × worse.
+pub const MORE_STARTS_MAX_LIGHTS: usize = CHECK_GRID * CHECK_GRID / 32;
+
+/// The starts of a single map of `n` lights after the default's own (ALGORITHMS.md §4.2).
+fn other_starts(n: usize) -> &'static [f32] {
+    const ALL: [f32; 3] = [
+        SECOND_START_EXPONENT,
+        MORE_START_EXPONENTS[0],
+        MORE_START_EXPONENTS[1],
+    ];
+    match n {
+        0..=MORE_STARTS_MAX_LIGHTS => &ALL,
+        _ if n <= SWAP_MAX_LIGHTS => &ALL[..1],
+        _ => &[],
+    }
+}
+
+/// A single map of more than [`SWAP_MAX_LIGHTS`] and at most [`STEPS_MAX_LIGHTS`] lights takes
+/// this many times the Lloyd steps asked for (ALGORITHMS.md §4.2, "Steps"): it has neither starts
+/// nor swaps to leave a poor fixed point, and at 128 lights two more half-resolution steps took
+/// night.exr turned 200° from 1.28 to 1.03 × the k-means floor for 0.2 ms. At 256 a step costs
+/// 0.18 ms, and the default is level with median cut's time there.
+const STEPS_FACTOR: usize = 2;
+const STEPS_MAX_LIGHTS: usize = 128;
+
+/// The diffuse error that decides between starts is estimated from the map binned into
 /// `CHECK_GRID`² emitters (first moments kept, so the error is second order in the bin size) at
 /// `CHECK_NORMALS` Fibonacci normals: the irradiance is smooth, and the starts it tells apart
 /// differ by tens of percent where it matters.
@@ -332,7 +363,7 @@ const TILT_MAX_LIGHTS: usize = CHECK_GRID * CHECK_GRID / 8;
 /// otherwise moved 0.3° off the disc; on tests/data, shares of 0.25 and 0.5 tilt the same lights.
 const TILT_CORE_SHARE: f64 = 0.5;
 
-/// The binned reference a single map's choices are made by (the two starts, the tilt): the
+/// The binned reference a single map's choices are made by (the starts, the tilt): the
 /// domain square (its half-resolution copy, the same bins' energies and moments from a quarter of
 /// the texels) binned [`CHECK_GRID`]² at [`CHECK_NORMALS`] normals.
 fn check_reference(image: &DomainImage) -> IrradianceReference {
@@ -630,7 +661,7 @@ impl Default for Extractor {
             moves: Vec::new(),
             moves_scratch: Vec::new(),
             swap_rounds: SWAP_ROUNDS,
-            second_start: Some(SECOND_START_EXPONENT),
+            other_starts: true,
             tilt: true,
         }
     }
@@ -644,7 +675,8 @@ impl Extractor {
     /// Extra Lloyd steps for [`Method::Voronoi`] (default [`DEFAULT_REFINE`]): after the first
     /// assignment, re-seed each light at its centroid and assign again, `steps` times. Each step
     /// costs one more assignment pass; two is the fewest with which the diffuse error is at most
-    /// median cut's at every N ≥ 16 (docs/EVALUATION.md, docs/PERFORMANCE.md).
+    /// median cut's at every N ≥ 16 (docs/EVALUATION.md, docs/PERFORMANCE.md). A single map of 65
+    /// to 128 lights takes twice as many ([`STEPS_FACTOR`]).
     pub fn set_refine(&mut self, steps: usize) {
         self.refine = steps.min(8);
     }
@@ -657,12 +689,13 @@ impl Extractor {
     }
 
     /// A single map of at most [`SWAP_MAX_LIGHTS`] default lights also starts from the warp by
-    /// Y^`exponent` (default [`SECOND_START_EXPONENT`]), takes the same Lloyd steps and swap
-    /// rounds, and the start whose lights' diffuse error (estimated from the reduced map, as for
-    /// `--max-error`) is lower goes on to the final assignment (ALGORITHMS.md §4.2, "Two starts").
-    /// `None`: one start. Streams start once.
-    pub fn set_second_start(&mut self, exponent: Option<f32>) {
-        self.second_start = exponent;
+    /// Y^[`SECOND_START_EXPONENT`], and at most [`MORE_STARTS_MAX_LIGHTS`] from
+    /// [`MORE_START_EXPONENTS`] too; each start takes the same Lloyd steps and swap rounds, and the
+    /// one whose lights' diffuse error (estimated from the reduced map, as for `--max-error`) is
+    /// lowest goes on to the final assignment (ALGORITHMS.md §4.2, "Starts"; default on). `false`:
+    /// one start. Streams start once.
+    pub fn set_other_starts(&mut self, on: bool) {
+        self.other_starts = on;
     }
 
     /// Whether a single map's default lights above the horizon are tilted toward it by the
@@ -983,7 +1016,7 @@ impl Extractor {
     }
 
     /// Default method: spherical Voronoi cells of the seeds, lights at luminance-weighted centroids.
-    /// `may_restart`: the default's own seeds, which may take a second start; the inverse-CDF
+    /// `may_restart`: the default's own seeds, which may take other starts; the inverse-CDF
     /// baseline shares the rest but keeps its own warp.
     fn assign_spherical(&mut self, image: &DomainImage, may_restart: bool) -> Vec<Light> {
         // A stream's later frames take one full-resolution Lloyd step each, from the last frame's
@@ -991,6 +1024,11 @@ impl Extractor {
         // their own, and alternating the two kept the lights of a static scene moving 0.5–1.5° a
         // frame without end.
         let steps = match self.seed_origin {
+            SeedOrigin::Warp
+                if (SWAP_MAX_LIGHTS + 1..=STEPS_MAX_LIGHTS).contains(&self.seeds.len()) =>
+            {
+                self.refine * STEPS_FACTOR
+            }
             SeedOrigin::Warp => self.refine,
             SeedOrigin::StreamStart => self.refine.max(VIDEO_START_STEPS),
             SeedOrigin::LastFrame => 0,
@@ -1021,27 +1059,33 @@ impl Extractor {
         let steps_image = if coarse { &half } else { image };
         let first = self.settle(steps_image, coarse, steps);
         let n = self.seeds.len();
-        // The binned reference that the two starts and the tilt choose by, built once.
+        // The binned reference that the starts and the tilt choose by, built once.
         let mut check: Option<IrradianceReference> = None;
-        if let Some(exponent) = self.second_start
-            && may_restart
-            && self.seed_origin == SeedOrigin::Warp
-            && n <= SWAP_MAX_LIGHTS
-            && exponent != self.placement.exponent
-        {
-            // Two starts (ALGORITHMS.md §4.2): the Lloyd steps and swaps end in the fixed point
+        let starts: &[f32] =
+            if self.other_starts && may_restart && self.seed_origin == SeedOrigin::Warp {
+                other_starts(n)
+            } else {
+                &[]
+            };
+        if !starts.is_empty() {
+            // Starts (ALGORITHMS.md §4.2): the Lloyd steps and swaps end in the fixed point
             // nearest their start, and on a few maps the default's start lies in a poor one.
             let check = check.get_or_insert_with(|| check_reference(steps_image));
-            let first_seeds = self.seeds.clone();
-            let placement = Placement {
-                exponent,
-                ..self.placement
-            };
-            self.warp_by(image, placement, n);
-            let second = self.settle(steps_image, coarse, steps);
-            if check.error(&first).rel_rms <= check.error(&second).rel_rms {
-                self.seeds = first_seeds;
+            let mut best = (check.error(&first).rel_rms, self.seeds.clone());
+            let own = self.placement.exponent;
+            for &exponent in starts.iter().filter(|&&e| e != own) {
+                let placement = Placement {
+                    exponent,
+                    ..self.placement
+                };
+                self.warp_by(image, placement, n);
+                let lights = self.settle(steps_image, coarse, steps);
+                let error = check.error(&lights).rel_rms;
+                if error < best.0 {
+                    best = (error, self.seeds.clone());
+                }
             }
+            self.seeds = best.1;
         }
         if n > SWAP_MAX_LIGHTS && self.swap_rounds > 0 {
             self.seed_split(image, coarse, &first);
