@@ -301,15 +301,27 @@ pub fn by_placement(rows: &[FrontierRow]) -> Vec<(Placement, Vec<&FrontierRow>)>
 }
 
 pub fn frontier_markdown(rows: &[FrontierRow]) -> String {
-    let default = Placement::default();
     let mut s = String::from(
-        "Default method with one start (the default takes a second by Y^½ up to 64 lights: ALGORITHMS.md §4.2), whole sphere, every map and N of the sweep; worst map first, median after. Diffuse ÷ k-means (target ≤ 1.25), shadowed ÷ median cut (target ≤ 1).\n\n| exponent | cap (seeds/texel) | uniform share | worst diffuse ÷ k-means | median | worst shadowed ÷ median cut | median |\n|---|---|---|---|---|---|---|\n",
+        "Default method with one start (the default takes a second by Y^½ up to 64 lights and four up to 32: ALGORITHMS.md §4.2), whole sphere, every map and N of the sweep; worst map first, median after. Diffuse ÷ k-means (target ≤ 1.25), shadowed ÷ median cut (target ≤ 1).\n\n| exponent | cap (seeds/texel) | uniform share | worst diffuse ÷ k-means | median | worst shadowed ÷ median cut | median |\n|---|---|---|---|---|---|---|\n",
     );
     for (p, rs) in by_placement(rows) {
         let ((wd, wdm), (ws, wsm)) = worst_of(&rs);
         let md = median(rs.iter().map(|r| r.diffuse_ratio).collect());
         let ms = median(rs.iter().map(|r| r.shadowed_ratio).collect());
-        let mark = if p == default { " (default)" } else { "" };
+        // The counts of the sweep at which this is a single map's placement.
+        let mut counts: Vec<usize> = rs
+            .iter()
+            .map(|r| r.lights)
+            .filter(|&n| Placement::for_lights(n) == p)
+            .collect();
+        counts.sort_unstable();
+        counts.dedup();
+        let mark = if counts.is_empty() {
+            String::new()
+        } else {
+            let counts: Vec<String> = counts.iter().map(|n| n.to_string()).collect();
+            format!(" (default at N = {})", counts.join(", "))
+        };
         s += &format!(
             "| {}{mark} | {} | {} | {wd:.2} ({wdm}) | {md:.2} | {ws:.2} ({wsm}) | {ms:.2} |\n",
             p.exponent,
