@@ -11,8 +11,7 @@
 
 use crate::envmap::{EnvMap, Projection};
 use crate::mapping::Domain;
-use glam::{DVec2, DVec3, Vec3A};
-use std::f64::consts::PI;
+use glam::{DVec2, Vec3A};
 
 /// Source pixels per domain texel aimed for, where the source is coarsest. Lights take their
 /// direction from each texel's first moment, so texels coarser than the source lose almost nothing:
@@ -431,9 +430,6 @@ impl PixelTable {
 impl LatLongTable {
     fn new(width: usize, height: usize, domain: Domain, side: usize) -> Self {
         let texel_sr = domain.solid_angle() / (side * side) as f64;
-        let column_sin_cos: Vec<(f64, f64)> = (0..width)
-            .map(|i| (2.0 * PI * ((i as f64 + 0.5) / width as f64 - 0.5)).sin_cos())
-            .collect();
         let mut rows = Vec::with_capacity(height);
         let mut all = SpanList {
             row_start: vec![0],
@@ -447,11 +443,10 @@ impl LatLongTable {
             let sin_theta = DVec2::new(dir.x, dir.z).length();
             rows.push([w as f32, (w * sin_theta) as f32, (w * dir.y) as f32]);
             let row_first = all.spans.len();
-            // The pixel's direction as `Projection::pixel` gives it, from the row's and the
-            // column's sines and cosines, computed once each instead of once a pixel.
-            let (st, ct) = (PI * ((j as f64 + 0.5) / height as f64)).sin_cos();
-            for (i, &(sp, cp)) in column_sin_cos.iter().enumerate() {
-                let dir = DVec3::new(st * sp, ct, -st * cp);
+            for i in 0..width {
+                let (dir, _) = Projection::LatLong
+                    .pixel(i, j, width, height)
+                    .expect("lat-long");
                 let texel = texel_of(domain, side, dir).unwrap_or(SKIP);
                 let in_row = all.spans.len() > row_first;
                 match all.spans.last_mut() {
