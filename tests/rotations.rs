@@ -14,7 +14,7 @@ use vemlight::lights::{ExtractOptions, Extractor, Method};
 use vemlight::mapping::Domain;
 
 /// Every case prints its ratio; the worst is named. The bounds are loose (the worst is 1.36 ×
-/// where the target is 1.25, two cases over it): they catch a placement that falls apart on
+/// where the target is 1.25, one case over it): they catch a placement that falls apart on
 /// turned maps.
 #[test]
 #[ignore]
