@@ -908,6 +908,50 @@ fn two_starts_keep_16_lights_near_the_k_means_floor() {
     );
 }
 
+/// The third start at 33–64 lights (ALGORITHMS.md §4.2, "Starts"): on city.exr, a bright sky with
+/// no sun, the lights of the Y¹ start have the shadows under occluders (§9) at most median cut's,
+/// where the two other starts' lights are a third over it; the start is chosen on the diffuse
+/// estimate, so its diffuse error stays near the k-means floor too.
+#[test]
+fn the_wide_start_keeps_city_shadows_at_64_lights_within_median_cuts() {
+    use vemlight::eval::accuracy::Truth;
+    let map = load("city.exr");
+    let truth = Truth::new(&map, Domain::Sphere);
+    let shadowed = |lights: &[vemlight::lights::Light]| {
+        let per_scene = truth.shadowed(lights);
+        per_scene.iter().sum::<f64>() / per_scene.len() as f64
+    };
+    let lights = |m| {
+        Extractor::new()
+            .extract(&map, &opts(64, Domain::Sphere, m))
+            .lights
+    };
+    let default = lights(Method::Voronoi);
+    let median_cut = shadowed(&lights(Method::MedianCut));
+    let floor = truth.diffuse.error(&lights(Method::KMeans)).rel_rms;
+    let ratio = shadowed(&default) / median_cut;
+    let diffuse = truth.diffuse.error(&default).rel_rms / floor;
+    let mut own_start = Extractor::new();
+    let placement = vemlight::lights::Placement::for_lights(64);
+    own_start.set_other_starts(false);
+    own_start.set_placement(placement);
+    let without = shadowed(
+        &own_start
+            .extract(&map, &opts(64, Domain::Sphere, Method::Voronoi))
+            .lights,
+    ) / median_cut;
+    eprintln!(
+        "city.exr N=64: shadowed {ratio:.3} × median cut's ({without:.3} from Y^{} alone), diffuse {diffuse:.3} × k-means",
+        placement.exponent
+    );
+    assert!(ratio <= 1.0, "shadowed {ratio:.3} × median cut's");
+    assert!(diffuse <= 1.25, "diffuse {diffuse:.3} × k-means");
+    assert!(
+        without > 1.1,
+        "the count's own start alone gives {without:.3} × median cut's: the case no longer tests the third start"
+    );
+}
+
 /// The baselines of ALGORITHMS.md §10. Converged k-means is the floor of the diffuse error: at
 /// most median cut's and VMLPS's on every map at N = 16 and 64; and VMLPS's variance-minimising
 /// cut puts two lights on two separated lamps where it matters.

@@ -321,16 +321,24 @@ pub const MORE_START_EXPONENTS: [f32; 2] = [0.375, 0.75];
 /// third start lowered the median error but twice chose a start that was 1.3 × worse.
 pub const MORE_STARTS_MAX_LIGHTS: usize = CHECK_GRID * CHECK_GRID / 32;
 
+/// The third start of a single map of more than [`MORE_STARTS_MAX_LIGHTS`] and at most
+/// [`SWAP_MAX_LIGHTS`] lights (ALGORITHMS.md §4.2, "Starts"): Y¹ (capped), the paper's importance,
+/// beside the Y^¾ of [`Placement::for_lights`] and Y^½. With it, chosen on the finer
+/// [`WIDE_CHECK_GRID`]² estimate, no map of tests/data or the hard skies, as they are or turned,
+/// was left over median cut's shadowed error at 64 lights (three were), and the diffuse error fell.
+pub const WIDE_START_EXPONENT: f32 = 1.0;
+
 /// The starts of a single map of `n` lights after the default's own (ALGORITHMS.md §4.2).
 fn other_starts(n: usize) -> &'static [f32] {
-    const ALL: [f32; 3] = [
+    const FEW: [f32; 3] = [
         SECOND_START_EXPONENT,
         MORE_START_EXPONENTS[0],
         MORE_START_EXPONENTS[1],
     ];
+    const MANY: [f32; 2] = [SECOND_START_EXPONENT, WIDE_START_EXPONENT];
     match n {
-        0..=MORE_STARTS_MAX_LIGHTS => &ALL,
-        _ if n <= SWAP_MAX_LIGHTS => &ALL[..1],
+        0..=MORE_STARTS_MAX_LIGHTS => &FEW,
+        _ if n <= SWAP_MAX_LIGHTS => &MANY,
         _ => &[],
     }
 }
@@ -350,6 +358,13 @@ const STEPS_MAX_LIGHTS: usize = 128;
 const CHECK_GRID: usize = 32;
 const CHECK_NORMALS: usize = 128;
 
+/// The bins of the estimate that chooses between the starts of more than
+/// [`MORE_STARTS_MAX_LIGHTS`] lights: 36 a light at 64 lights, where the 32² grid's 16 a light
+/// chose between the three starts no better than between two (two maps over median cut's
+/// shadowed error at 64 lights against none, ALGORITHMS.md §4.2, "Starts"). The tilt keeps the
+/// 32² estimate it was measured with.
+const WIDE_CHECK_GRID: usize = 48;
+
 /// The most lights a single map tilts (ALGORITHMS.md §4.2, "Tilt"): the reference's bins stand
 /// for points too, with an excess of their own that grows with their size, and it is small
 /// beside the lights' only while a bin is at most an eighth of a light's cell. With 256 lights
@@ -367,11 +382,12 @@ const TILT_CORE_SHARE: f64 = 0.5;
 /// domain square (its half-resolution copy, the same bins' energies and moments from a quarter of
 /// the texels) binned [`CHECK_GRID`]² at [`CHECK_NORMALS`] normals.
 fn check_reference(image: &DomainImage) -> IrradianceReference {
-    IrradianceReference::from_domain_image_at(
-        image,
-        CHECK_GRID,
-        error::fibonacci_sphere(CHECK_NORMALS),
-    )
+    check_reference_at(image, CHECK_GRID)
+}
+
+/// [`check_reference`] binned `grid`².
+fn check_reference_at(image: &DomainImage, grid: usize) -> IrradianceReference {
+    IrradianceReference::from_domain_image_at(image, grid, error::fibonacci_sphere(CHECK_NORMALS))
 }
 
 /// Lloyd steps of the first frame of a video stream (see [`Extractor::set_video`]): the later
@@ -714,7 +730,7 @@ impl Extractor {
 
     /// A single map of at most [`SWAP_MAX_LIGHTS`] default lights also starts from the warp by
     /// Y^[`SECOND_START_EXPONENT`], and at most [`MORE_STARTS_MAX_LIGHTS`] from
-    /// [`MORE_START_EXPONENTS`] too; each start takes the same Lloyd steps and swap rounds, and the
+    /// [`MORE_START_EXPONENTS`] too, above that from Y^[`WIDE_START_EXPONENT`]; each start takes the same Lloyd steps and swap rounds, and the
     /// one whose lights' diffuse error (estimated from the reduced map, as for `--max-error`) is
     /// lowest goes on to the final assignment (ALGORITHMS.md §4.2, "Starts"; default on). `false`:
     /// one start. Streams start once.
@@ -1105,7 +1121,13 @@ impl Extractor {
         if !starts.is_empty() {
             // Starts (ALGORITHMS.md §4.2): the Lloyd steps and swaps end in the fixed point
             // nearest their start, and on a few maps the default's start lies in a poor one.
-            let check = check.get_or_insert_with(|| check_reference(steps_image));
+            let wide;
+            let check = if n > MORE_STARTS_MAX_LIGHTS {
+                wide = check_reference_at(steps_image, WIDE_CHECK_GRID);
+                &wide
+            } else {
+                check.get_or_insert_with(|| check_reference(steps_image))
+            };
             let mut best = (check.error(&first).rel_rms, self.seeds.clone());
             let own = self.placement_for(n);
             for &exponent in starts.iter().filter(|&&e| e != own.exponent) {
