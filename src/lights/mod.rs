@@ -378,7 +378,8 @@ const TILT_MAX_LIGHTS: usize = CHECK_GRID * CHECK_GRID / 8;
 /// otherwise moved 0.3° off the disc; on tests/data, shares of 0.25 and 0.5 tilt the same lights.
 const TILT_CORE_SHARE: f64 = 0.5;
 
-/// The binned reference a single map's choices are made by (the starts, the tilt): the
+/// The binned reference a single map's choices are made by (the starts up to
+/// [`MORE_STARTS_MAX_LIGHTS`] lights, the tilt; above, the starts take [`WIDE_CHECK_GRID`]): the
 /// domain square (its half-resolution copy, the same bins' energies and moments from a quarter of
 /// the texels) binned [`CHECK_GRID`]² at [`CHECK_NORMALS`] normals.
 fn check_reference(image: &DomainImage) -> IrradianceReference {
@@ -730,9 +731,9 @@ impl Extractor {
 
     /// A single map of at most [`SWAP_MAX_LIGHTS`] default lights also starts from the warp by
     /// Y^[`SECOND_START_EXPONENT`], and at most [`MORE_STARTS_MAX_LIGHTS`] from
-    /// [`MORE_START_EXPONENTS`] too, above that from Y^[`WIDE_START_EXPONENT`]; each start takes the same Lloyd steps and swap rounds, and the
-    /// one whose lights' diffuse error (estimated from the reduced map, as for `--max-error`) is
-    /// lowest goes on to the final assignment (ALGORITHMS.md §4.2, "Starts"; default on). `false`:
+    /// [`MORE_START_EXPONENTS`] too, above that from Y^[`WIDE_START_EXPONENT`]; each start takes
+    /// the same Lloyd steps and swap rounds, and the one whose lights' diffuse error (estimated
+    /// from the reduced map, as for `--max-error`) is lowest goes on to the final assignment (ALGORITHMS.md §4.2, "Starts"; default on). `false`:
     /// one start. Streams start once.
     pub fn set_other_starts(&mut self, on: bool) {
         self.other_starts = on;
@@ -1121,6 +1122,7 @@ impl Extractor {
         if !starts.is_empty() {
             // Starts (ALGORITHMS.md §4.2): the Lloyd steps and swaps end in the fixed point
             // nearest their start, and on a few maps the default's start lies in a poor one.
+            // Above 32 lights the 32² bins are too few a light to choose between three starts.
             let wide;
             let check = if n > MORE_STARTS_MAX_LIGHTS {
                 wide = check_reference_at(steps_image, WIDE_CHECK_GRID);
