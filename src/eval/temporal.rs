@@ -237,7 +237,7 @@ pub fn run_variants(
 pub use crate::lights::error::irradiance_at;
 
 /// True E (luminance) at each normal, by brute force over the frame's pixels binned
-/// [`TRUTH_BIN`] × [`TRUTH_BIN`] with their first moment kept.
+/// 4 × 4 (`TRUTH_BIN`) with their first moment kept.
 pub fn truth(map: &EnvMap, domain: Domain, normals: &[DVec3]) -> Vec<f64> {
     let (bw, bh) = (
         map.width.div_ceil(TRUTH_BIN),

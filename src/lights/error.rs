@@ -48,7 +48,7 @@ pub fn irradiance_at(lights: &[Light], normals: &[DVec3]) -> Vec<f64> {
 
 /// Point emitters (unit direction, luminance energy) in columns, for the brute-force sums
 /// Σ e·max(0, n·d): a normal's sum runs over the columns eight at a time in f32 lanes the compiler
-/// vectorises, each block of [`Emitters::BLOCK`] emitters added into an f64 total, so that a map's
+/// vectorises, each block of 512 emitters (`Emitters::BLOCK`) added into an f64 total, so that a map's
 /// half a million pixels keep the f64 sum's precision.
 pub struct Emitters {
     x: Vec<f32>,

@@ -324,7 +324,7 @@ pub const MORE_STARTS_MAX_LIGHTS: usize = CHECK_GRID * CHECK_GRID / 32;
 /// The third start of a single map of more than [`MORE_STARTS_MAX_LIGHTS`] and at most
 /// [`SWAP_MAX_LIGHTS`] lights (ALGORITHMS.md §4.2, "Starts"): Y¹ (capped), the paper's importance,
 /// beside the Y^¾ of [`Placement::for_lights`] and Y^½. With it, chosen on the finer
-/// [`WIDE_CHECK_GRID`]² estimate, no map of tests/data or the hard skies, as they are or turned,
+/// 48² estimate (`WIDE_CHECK_GRID`), no map of tests/data or the hard skies, as they are or turned,
 /// was left over median cut's shadowed error at 64 lights (three were), and the diffuse error fell.
 pub const WIDE_START_EXPONENT: f32 = 1.0;
 
