@@ -733,8 +733,8 @@ impl Extractor {
     /// Y^[`SECOND_START_EXPONENT`], and at most [`MORE_STARTS_MAX_LIGHTS`] from
     /// [`MORE_START_EXPONENTS`] too, above that from Y^[`WIDE_START_EXPONENT`]; each start takes
     /// the same Lloyd steps and swap rounds, and the one whose lights' diffuse error (estimated
-    /// from the reduced map, as for `--max-error`) is lowest goes on to the final assignment (ALGORITHMS.md §4.2, "Starts"; default on). `false`:
-    /// one start. Streams start once.
+    /// from the reduced map, as for `--max-error`) is lowest goes on to the final assignment
+    /// (ALGORITHMS.md §4.2, "Starts"; default on). `false`: one start. Streams start once.
     pub fn set_other_starts(&mut self, on: bool) {
         self.other_starts = on;
     }
