@@ -118,3 +118,143 @@ pub fn total_irradiance(lights: &[Light]) -> [f64; 3] {
     }
     s
 }
+
+/// The angular radius of a cell with a bright core (ALGORITHMS.md §12, "Core and rest"): the
+/// uniform disc whose half-energy radius is the cell's, with its core and the rest of it each
+/// taken as a uniform disc about the same centre, of the RMS spread each has. `cell` and `core`
+/// are (P, |M|) over the cell and over its core. Where the core holds most of the light (a clear
+/// sun in its faint glare) this is about the core's own radius, which a faint wide halo cannot
+/// carry off as it does the whole cell's RMS; where the rest holds most (a sun through haze or
+/// leaves, a lamp in its glow) the disc widens toward the rest's, and it is continuous between.
+pub fn core_halo_radius(cell: (f64, f64), core: (f64, f64)) -> f32 {
+    let ((p, m), (pc, mc)) = (cell, core);
+    if !(p.is_finite() && m.is_finite() && pc.is_finite() && mc.is_finite()) || p <= 0.0 {
+        return 0.0;
+    }
+    let r_core = angular_radius(pc, mc) as f64;
+    let (share, rest) = (pc / p, p - pc);
+    if pc <= 0.0 || share >= 1.0 || rest <= 0.0 {
+        return if pc > 0.0 {
+            r_core as f32
+        } else {
+            angular_radius(p, m)
+        };
+    }
+    // The rest's k-means energy P − |M| is the cell's less the core's (§10); its disc is at
+    // least as wide as the core's.
+    let rest_spread = ((p - m) - (pc - mc)).max(0.0) / rest;
+    let r_rest = (2.0 * rest_spread.min(1.0).sqrt()).max(r_core);
+    let (c2, h2) = (r_core * r_core, r_rest * r_rest);
+    // Energy within ρ of the centre: share·ρ²/c² + (1 − share)·ρ²/h² while ρ ≤ r_core, then
+    // share + (1 − share)·ρ²/h²; ρ₅₀ where that is one half.
+    let outside = h2 * (0.5 - share) / (1.0 - share);
+    let rho2 = if c2 > 0.0 {
+        let inside = 0.5 / (share / c2 + (1.0 - share) / h2);
+        if inside <= c2 { inside } else { outside }
+    } else {
+        outside.max(0.0)
+    };
+    // A uniform disc of radius R holds half its energy within R/√2.
+    (2.0 * rho2).sqrt().min(std::f64::consts::PI) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// (P, |M|) of a uniform disc of radius `r` (radians) holding `p`: |M| = P·(1 − r²/4)
+    /// (ALGORITHMS.md §12), so that `angular_radius` gives back `r`.
+    fn disc(p: f64, r: f64) -> (f64, f64) {
+        (p, p * (1.0 - r * r / 4.0))
+    }
+
+    /// A core of `share` on a disc of radius `rc` and the rest on a disc of radius `rh`.
+    fn cell(share: f64, rc: f64, rh: f64) -> ((f64, f64), (f64, f64)) {
+        let (core, rest) = (disc(share, rc), disc(1.0 - share, rh));
+        ((core.0 + rest.0, core.1 + rest.1), core)
+    }
+
+    #[test]
+    fn the_half_energy_disc_matches_the_two_disc_median() {
+        let (rc, rh) = (0.5f64.to_radians(), 4f64.to_radians());
+        for share in [0.05, 0.2, 0.3, 0.45, 0.6, 0.8, 0.95] {
+            let (c, k) = cell(share, rc, rh);
+            // Energy within ρ: share·min(ρ/rc, 1)² + (1 − share)·(ρ/rh)²; bisect for one half.
+            let within =
+                |rho: f64| share * (rho / rc).min(1.0).powi(2) + (1.0 - share) * (rho / rh).powi(2);
+            let (mut lo, mut hi) = (0.0, rh);
+            for _ in 0..100 {
+                let mid = 0.5 * (lo + hi);
+                if within(mid) < 0.5 {
+                    lo = mid
+                } else {
+                    hi = mid
+                }
+            }
+            let expected = std::f64::consts::SQRT_2 * lo;
+            let got = core_halo_radius(c, k) as f64;
+            assert!(
+                (got - expected).abs() <= 1e-4 * expected,
+                "share {share}: {got} vs {expected}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_radius_runs_from_the_rests_to_the_cores_without_a_jump() {
+        let (rc, rh) = (0.3f64.to_radians(), 6f64.to_radians());
+        let radius = |s: f64| {
+            let (c, k) = cell(s, rc, rh);
+            core_halo_radius(c, k) as f64
+        };
+        // All rest: the rest's disc; all core: the core's.
+        assert!((radius(1e-9) - rh).abs() < 1e-3 * rh);
+        assert!((radius(1.0 - 1e-9) - rc).abs() < 1e-3 * rc);
+        // Monotone in the core's share, and continuous: no step between shares 10⁻⁷ apart
+        // (a threshold between the two radii would step by up to rh − rc anywhere).
+        let mut last = radius(0.001);
+        for i in 2..1000 {
+            let s = i as f64 / 1000.0;
+            let r = radius(s);
+            assert!(r <= last + 1e-9, "not monotone at share {s}");
+            assert!(
+                (radius(s + 1e-7) - r).abs() < 1e-3 * rh,
+                "step at share {s}"
+            );
+            last = r;
+        }
+    }
+
+    #[test]
+    fn a_faint_wide_halo_leaves_a_clear_sun_its_own_radius() {
+        // A 0.27° sun holding 80 % of its cell, the rest spread over 20°: the cell's RMS disc
+        // would be degrees wide; the half-energy disc is √(1/(2·0.625))… = 1.118 × the sun's.
+        let (rc, rh) = (0.27f64.to_radians(), 20f64.to_radians());
+        let (c, k) = cell(0.8, rc, rh);
+        let r = core_halo_radius(c, k) as f64;
+        assert!(
+            r > rc && r < 1.12 * rc,
+            "{} vs sun {}",
+            r.to_degrees(),
+            rc.to_degrees()
+        );
+        assert!((angular_radius(c.0, c.1) as f64) > 10.0 * rc);
+    }
+
+    #[test]
+    fn bad_moments_give_a_finite_radius() {
+        for (c, k) in [
+            ((0.0, 0.0), (0.0, 0.0)),
+            ((1.0, f64::NAN), (0.5, 0.5)),
+            ((1.0, 0.9), (0.0, 0.0)),
+            ((1.0, 1.2), (0.5, 0.6)),
+            ((1.0, 0.5), (1.0, 1.0)),
+        ] {
+            let r = core_halo_radius(c, k);
+            assert!(
+                r.is_finite() && (0.0..=std::f32::consts::PI).contains(&r),
+                "{c:?} {k:?}: {r}"
+            );
+        }
+    }
+}

@@ -24,8 +24,8 @@ mod tilt;
 pub mod vmlps;
 
 pub use light::{
-    Light, PRIMARY_CLUSTER_DEG, PrimaryLight, angular_radius, horizon_gap, primary_light,
-    total_irradiance,
+    Light, PRIMARY_CLUSTER_DEG, PrimaryLight, angular_radius, core_halo_radius, horizon_gap,
+    primary_light, total_irradiance,
 };
 
 use crate::envmap::EnvMap;
@@ -1675,20 +1675,25 @@ impl Extractor {
             .enumerate()
             .map(|(k, (a, &seed))| {
                 let d = dir(a, seed);
-                // The core's spread about its own centroid when the cores were measured (the
-                // spherical cells), else the whole cell's about the light's direction (the paper
-                // variant's lights sit at their seeds): P − M·d.
-                let (p, along) = if a.core_lum > 0.0 {
-                    (a.core_lum, a.core_moment.length())
+                // Where the cores were measured (the spherical cells): the disc with the cell's
+                // half-energy radius, core and rest each a disc (ALGORITHMS.md §12). Else the
+                // whole cell's spread about the light's direction (the paper variant's lights
+                // sit at their seeds): P − M·d.
+                let radius = if a.core_lum > 0.0 {
+                    core_halo_radius(
+                        (a.lum, a.weighted_dir.length()),
+                        (a.core_lum, a.core_moment.length()),
+                    )
                 } else {
-                    (a.lum, a.weighted_dir.dot(d.as_dvec3().normalize_or_zero()))
+                    let along = a.weighted_dir.dot(d.as_dvec3().normalize_or_zero());
+                    angular_radius(a.lum, along)
                 };
                 Light {
                     id: k as u32,
                     to_light: d.normalize_or(Vec3::Y).to_array(),
                     irradiance: (a.energy * texel_sr).as_vec3().to_array(),
                     solid_angle: (a.texels as f64 * texel_sr) as f32,
-                    angular_radius: angular_radius(p, along),
+                    angular_radius: radius,
                     shadowed: None,
                 }
             })
