@@ -996,6 +996,36 @@ fn the_wide_start_keeps_city_shadows_at_64_lights_within_median_cuts() {
     );
 }
 
+/// The two starts at 65–128 lights (ALGORITHMS.md §4.2, "Starts"): on studio.exr, two lamps
+/// holding 88 % of the light in 1 % of the pixels, the Y^¾ start alone ends in a fixed point over
+/// the k-means floor by more than a tenth at 128 lights; chosen among Y^⅝, Y^¾ and Y^⅞ on the
+/// diffuse estimate, the lights are within the floor's 1.25 and under the lone start's error.
+#[test]
+fn the_steps_starts_keep_studio_at_128_lights_near_the_floor() {
+    let map = load("studio.exr");
+    let reference = IrradianceReference::from_map(&map, Domain::Sphere);
+    let error = |ex: &mut Extractor, m| {
+        reference
+            .error(&ex.extract(&map, &opts(128, Domain::Sphere, m)).lights)
+            .rel_rms
+    };
+    let floor = error(&mut Extractor::new(), Method::KMeans);
+    let default = error(&mut Extractor::new(), Method::Voronoi) / floor;
+    let mut own_start = Extractor::new();
+    own_start.set_other_starts(false);
+    let without = error(&mut own_start, Method::Voronoi) / floor;
+    eprintln!("studio.exr N=128: {default:.3} × k-means ({without:.3} from Y^¾ alone)");
+    assert!(default <= 1.25, "diffuse {default:.3} × k-means");
+    assert!(
+        default < without,
+        "the starts chose {default:.3}, the lone start gives {without:.3}"
+    );
+    assert!(
+        without > 1.1,
+        "the count's own start alone gives {without:.3} × k-means: the case no longer tests the starts"
+    );
+}
+
 /// The baselines of ALGORITHMS.md §10. Converged k-means is the floor of the diffuse error: at
 /// most median cut's and VMLPS's on every map at N = 16 and 64; and VMLPS's variance-minimising
 /// cut puts two lights on two separated lamps where it matters.

@@ -328,6 +328,13 @@ pub const MORE_STARTS_MAX_LIGHTS: usize = CHECK_GRID * CHECK_GRID / 32;
 /// was left over median cut's shadowed error at 64 lights (three were), and the diffuse error fell.
 pub const WIDE_START_EXPONENT: f32 = 1.0;
 
+/// The starts of a single map of more than [`SWAP_MAX_LIGHTS`] and at most [`STEPS_MAX_LIGHTS`]
+/// lights beside the Y^¾ of [`Placement::for_lights`] (ALGORITHMS.md §4.2, "Starts"): one on each
+/// side. Chosen on the 48² estimate, they took the worst diffuse error at 128 lights over the 13
+/// maps and the 18 held out from 1.27 to 1.18 × k-means (studio.exr 1.15 → 0.87); Y^½ and Y^⅝
+/// instead left it at 1.29.
+pub const STEPS_START_EXPONENTS: [f32; 2] = [0.625, 0.875];
+
 /// The starts of a single map of `n` lights after the default's own (ALGORITHMS.md §4.2).
 fn other_starts(n: usize) -> &'static [f32] {
     const FEW: [f32; 3] = [
@@ -339,13 +346,14 @@ fn other_starts(n: usize) -> &'static [f32] {
     match n {
         0..=MORE_STARTS_MAX_LIGHTS => &FEW,
         _ if n <= SWAP_MAX_LIGHTS => &MANY,
+        _ if n <= STEPS_MAX_LIGHTS => &STEPS_START_EXPONENTS,
         _ => &[],
     }
 }
 
 /// A single map of more than [`SWAP_MAX_LIGHTS`] and at most [`STEPS_MAX_LIGHTS`] lights takes
-/// this many times the Lloyd steps asked for (ALGORITHMS.md §4.2, "Steps"): it has neither starts
-/// nor swaps to leave a poor fixed point, and at 128 lights two more half-resolution steps took
+/// this many times the Lloyd steps asked for (ALGORITHMS.md §4.2, "Steps"): it has no swaps to
+/// leave a poor fixed point, and at 128 lights two more half-resolution steps took
 /// night.exr turned 200° from 1.28 to 1.03 × the k-means floor for 0.2 ms. At 256 a step costs
 /// 0.18 ms, and the default is level with median cut's time there.
 const STEPS_FACTOR: usize = 2;
@@ -359,7 +367,7 @@ const CHECK_GRID: usize = 32;
 const CHECK_NORMALS: usize = 128;
 
 /// The bins of the estimate that chooses between the starts of more than
-/// [`MORE_STARTS_MAX_LIGHTS`] lights: 36 a light at 64 lights, where the 32² grid's 16 a light
+/// [`MORE_STARTS_MAX_LIGHTS`] lights: 36 a light at 64 lights (18 at 128), where the 32² grid's 16 a light
 /// chose between the three starts no better than between two (two maps over median cut's
 /// shadowed error at 64 lights against none, ALGORITHMS.md §4.2, "Starts"). The tilt keeps the
 /// 32² estimate it was measured with.
