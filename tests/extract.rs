@@ -914,6 +914,22 @@ fn a_low_clear_sun_at_256_lights_is_near_the_k_means_floor() {
     );
 }
 
+/// The default's diffuse error at `n` lights over converged k-means's (the floor, ALGORITHMS.md
+/// §10): with the starts of a single map, and from the count's own start alone.
+fn starts_over_floor(map: &EnvMap, n: usize) -> (f64, f64) {
+    let reference = IrradianceReference::from_map(map, Domain::Sphere);
+    let error = |ex: &mut Extractor, m| {
+        reference
+            .error(&ex.extract(map, &opts(n, Domain::Sphere, m)).lights)
+            .rel_rms
+    };
+    let floor = error(&mut Extractor::new(), Method::KMeans);
+    let with = error(&mut Extractor::new(), Method::Voronoi) / floor;
+    let mut own_start = Extractor::new();
+    own_start.set_other_starts(false);
+    (with, error(&mut own_start, Method::Voronoi) / floor)
+}
+
 /// Two starts (ALGORITHMS.md §4.2): at 16 lights the default's own start leaves night.exr and the
 /// high hazy, cloudy sky in poor Lloyd fixed points (1.39 and 1.27 × converged k-means), which the
 /// swap rounds do not leave; the start by Y^½ reaches better ones, and the estimated diffuse error
@@ -927,17 +943,7 @@ fn two_starts_keep_16_lights_near_the_k_means_floor() {
         ("night.exr", load("night.exr")),
         ("sky-high-hazy-clouds", sky),
     ] {
-        let reference = IrradianceReference::from_map(&map, Domain::Sphere);
-        let err = |ex: &mut Extractor, m| {
-            reference
-                .error(&ex.extract(&map, &opts(16, Domain::Sphere, m)).lights)
-                .rel_rms
-        };
-        let floor = err(&mut Extractor::new(), Method::KMeans);
-        let with = err(&mut Extractor::new(), Method::Voronoi) / floor;
-        let mut one_start = Extractor::new();
-        one_start.set_other_starts(false);
-        let without = err(&mut one_start, Method::Voronoi) / floor;
+        let (with, without) = starts_over_floor(&map, 16);
         eprintln!("{name} N=16: {with:.3} × k-means, {without:.3} × with one start");
         assert!(with <= 1.25, "{name}: {with:.3} × k-means");
         assert!(
@@ -1002,18 +1008,7 @@ fn the_wide_start_keeps_city_shadows_at_64_lights_within_median_cuts() {
 /// diffuse estimate, the lights are within the floor's 1.25 and under the lone start's error.
 #[test]
 fn the_steps_starts_keep_studio_at_128_lights_near_the_floor() {
-    let map = load("studio.exr");
-    let reference = IrradianceReference::from_map(&map, Domain::Sphere);
-    let error = |ex: &mut Extractor, m| {
-        reference
-            .error(&ex.extract(&map, &opts(128, Domain::Sphere, m)).lights)
-            .rel_rms
-    };
-    let floor = error(&mut Extractor::new(), Method::KMeans);
-    let default = error(&mut Extractor::new(), Method::Voronoi) / floor;
-    let mut own_start = Extractor::new();
-    own_start.set_other_starts(false);
-    let without = error(&mut own_start, Method::Voronoi) / floor;
+    let (default, without) = starts_over_floor(&load("studio.exr"), 128);
     eprintln!("studio.exr N=128: {default:.3} × k-means ({without:.3} from Y^¾ alone)");
     assert!(default <= 1.25, "diffuse {default:.3} × k-means");
     assert!(
