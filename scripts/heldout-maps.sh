@@ -1,7 +1,6 @@
 #!/usr/bin/env bash
-# Fetches the real HDR maps held out from tuning (ALGORITHMS.md §10, EVALUATION.md "Maps held
-# out"): the other worlds of the packages tests/data comes from, without the ones tests/data
-# already has. Usage: scripts/heldout-maps.sh [DIR]   (default target/heldout-maps), then
+# Fetches the real HDR maps held out from tuning (docs/EVALUATION.md, "Maps held out"): the
+# other worlds of the packages tests/data comes from, without the ones tests/data already has. Usage: scripts/heldout-maps.sh [DIR]   (default target/heldout-maps), then
 #   cargo run --release -- eval --maps DIR --out DIR/eval --doc /dev/null
 # Needs npm and apt-get download (Debian); about 45 MB of downloads.
 set -euo pipefail
@@ -21,10 +20,8 @@ for f in "$tmp"/usr/share/blender/datafiles/studiolights/world/*.exr; do
 done
 # Drop the maps tests/data already has (same bytes).
 here=$(cd "$(dirname "$0")/.." && pwd)
-for known in "$here"/tests/data/*.exr; do
-    sum=$(sha256sum "$known" | cut -d' ' -f1)
-    for f in "$dir"/*.exr; do
-        [ "$(sha256sum "$f" | cut -d' ' -f1)" = "$sum" ] && rm -f "$f"
-    done
+known=$(sha256sum "$here"/tests/data/*.exr | cut -d' ' -f1)
+for f in "$dir"/*.exr; do
+    if grep -qxF "$(sha256sum "$f" | cut -d' ' -f1)" <<<"$known"; then rm -f "$f"; fi
 done
 ls "$dir"/*.exr | wc -l | xargs echo "held-out maps in $dir:"

@@ -706,7 +706,7 @@ fn a_disc_source_gives_a_light_of_its_radius() {
 /// error with the core's radius, 0.96 × with this one).
 #[test]
 fn a_sun_in_a_bright_glare_gives_the_half_energy_disc() {
-    let (w, h) = (1024, 512);
+    use vemlight::eval::scenes::LatLongDirs;
     let centre = DVec3::new(-0.3, 0.6, 0.4).normalize();
     let (sun_r, glare_r) = (0.5f64.to_radians(), 4f64.to_radians());
     // Uniform discs: the sun holds 30 % of the light, the glare around it (the rest of its
@@ -716,19 +716,16 @@ fn a_sun_in_a_bright_glare_gives_the_half_energy_disc() {
         std::f64::consts::TAU * (sun_r.cos() - glare_r.cos()),
     );
     let (sun_l, glare_l) = ((0.3 / sun_sr) as f32, (0.7 / glare_sr) as f32);
-    let mut pixels = vec![[0.0f32; 3]; w * h];
-    for j in 0..h {
-        for i in 0..w {
-            let (d, _) = Projection::LatLong.pixel(i, j, w, h).unwrap();
-            let c = d.dot(centre);
-            if c >= sun_r.cos() {
-                pixels[j * w + i] = [sun_l; 3];
-            } else if c >= glare_r.cos() {
-                pixels[j * w + i] = [glare_l; 3];
-            }
+    let map = LatLongDirs::new(1024, 512).map(|d| {
+        let c = d.dot(centre);
+        if c >= sun_r.cos() {
+            [sun_l; 3]
+        } else if c >= glare_r.cos() {
+            [glare_l; 3]
+        } else {
+            [0.0; 3]
         }
-    }
-    let map = EnvMap::from_pixels(w, h, pixels, Projection::LatLong).unwrap();
+    });
     // The half-energy radius ρ of the pair: 0.3 + 0.7·(ρ² − r_s²)/(r_g² − r_s²) = ½; the disc
     // with that median has radius √2·ρ (about 3.0°).
     let rho = (sun_r.powi(2) + (0.2 / 0.7) * (glare_r.powi(2) - sun_r.powi(2))).sqrt();

@@ -131,15 +131,14 @@ pub fn core_halo_radius(cell: (f64, f64), core: (f64, f64)) -> f32 {
     if !(p.is_finite() && m.is_finite() && pc.is_finite() && mc.is_finite()) || p <= 0.0 {
         return 0.0;
     }
-    let r_core = angular_radius(pc, mc) as f64;
-    let (share, rest) = (pc / p, p - pc);
-    if pc <= 0.0 || share >= 1.0 || rest <= 0.0 {
-        return if pc > 0.0 {
-            r_core as f32
-        } else {
-            angular_radius(p, m)
-        };
+    if pc <= 0.0 {
+        return angular_radius(p, m);
     }
+    let r_core = angular_radius(pc, mc) as f64;
+    if pc >= p {
+        return r_core as f32;
+    }
+    let (share, rest) = (pc / p, p - pc);
     // The rest's k-means energy P − |M| is the cell's less the core's (§10); its disc is at
     // least as wide as the core's.
     let rest_spread = ((p - m) - (pc - mc)).max(0.0) / rest;

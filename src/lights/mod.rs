@@ -328,7 +328,7 @@ pub const MORE_STARTS_MAX_LIGHTS: usize = CHECK_GRID * CHECK_GRID / 32;
 /// was left over median cut's shadowed error at 64 lights (three were), and the diffuse error fell.
 pub const WIDE_START_EXPONENT: f32 = 1.0;
 
-/// The starts of a single map of more than [`SWAP_MAX_LIGHTS`] and at most [`STEPS_MAX_LIGHTS`]
+/// The starts of a single map of more than [`SWAP_MAX_LIGHTS`] and at most `STEPS_MAX_LIGHTS`
 /// lights beside the Y^¾ of [`Placement::for_lights`] (ALGORITHMS.md §4.2, "Starts"): one on each
 /// side. Chosen on the 48² estimate, they took the worst diffuse error at 128 lights over the 13
 /// maps and the 18 held out from 1.27 to 1.18 × k-means (studio.exr 1.15 → 0.87); Y^½ and Y^⅝
@@ -367,10 +367,10 @@ const CHECK_GRID: usize = 32;
 const CHECK_NORMALS: usize = 128;
 
 /// The bins of the estimate that chooses between the starts of more than
-/// [`MORE_STARTS_MAX_LIGHTS`] lights: 36 a light at 64 lights (18 at 128), where the 32² grid's 16 a light
-/// chose between the three starts no better than between two (two maps over median cut's
-/// shadowed error at 64 lights against none, ALGORITHMS.md §4.2, "Starts"). The tilt keeps the
-/// 32² estimate it was measured with.
+/// [`MORE_STARTS_MAX_LIGHTS`] lights: 36 a light at 64 lights (18 at 128), where the 32² grid's
+/// 16 a light chose between the three starts no better than between two (two maps over median
+/// cut's shadowed error at 64 lights against none, ALGORITHMS.md §4.2, "Starts"). The tilt keeps
+/// the 32² estimate it was measured with.
 const WIDE_CHECK_GRID: usize = 48;
 
 /// The most lights a single map tilts (ALGORITHMS.md §4.2, "Tilt"): the reference's bins stand
@@ -737,11 +737,12 @@ impl Extractor {
         self.swap_rounds = rounds;
     }
 
-    /// A single map of at most [`SWAP_MAX_LIGHTS`] default lights also starts from the warp by
-    /// Y^[`SECOND_START_EXPONENT`], and at most [`MORE_STARTS_MAX_LIGHTS`] from
-    /// [`MORE_START_EXPONENTS`] too, above that from Y^[`WIDE_START_EXPONENT`]; each start takes
-    /// the same Lloyd steps and swap rounds, and the one whose lights' diffuse error (estimated
-    /// from the reduced map, as for `--max-error`) is lowest goes on to the final assignment
+    /// A single map of at most `STEPS_MAX_LIGHTS` default lights also starts from other warps
+    /// (`other_starts`): up to [`MORE_STARTS_MAX_LIGHTS`] by Y^[`SECOND_START_EXPONENT`] and
+    /// [`MORE_START_EXPONENTS`], up to [`SWAP_MAX_LIGHTS`] by Y^[`SECOND_START_EXPONENT`] and
+    /// Y^[`WIDE_START_EXPONENT`], above that by [`STEPS_START_EXPONENTS`]; each start takes the
+    /// same Lloyd steps and swap rounds, and the one whose lights' diffuse error (estimated from
+    /// the reduced map, as for `--max-error`) is lowest goes on to the final assignment
     /// (ALGORITHMS.md §4.2, "Starts"; default on). `false`: one start. Streams start once.
     pub fn set_other_starts(&mut self, on: bool) {
         self.other_starts = on;
