@@ -740,6 +740,55 @@ fn a_sun_in_a_bright_glare_gives_the_half_energy_disc() {
     assert!(light.dir().angle_between(centre).to_degrees() < 0.2);
 }
 
+/// ALGORITHMS.md §12, "Core and rest": the rest of a cell is binned by angle, so the sky that a
+/// sun's cell also holds far from the sun does not widen its disc. A 0.27° sun (35 %) in a 2°
+/// glare (60 %) over a dim sky, at 16 lights: the sun's cell holds about a tenth of its light in
+/// sky tens of degrees away, and the light's disc stays inside the glare (the rest taken as one
+/// disc of its RMS spread, the rule before, gave a 2° glare's light 4.3° with 3 % of sky). The
+/// sky does move the cell's true median out: uniform sun and glare put it 17 % farther with this
+/// sky than with one a hundred times dimmer; the disc may move by half.
+#[test]
+fn far_sky_in_a_suns_cell_does_not_widen_its_disc() {
+    use vemlight::eval::scenes::LatLongDirs;
+    let centre = DVec3::new(0.4, 0.7, -0.3).normalize();
+    let (sun_r, glare_r) = (0.27f64.to_radians(), 2f64.to_radians());
+    let cap = |r: f64| std::f64::consts::TAU * (1.0 - r.cos());
+    let (sun_l, glare_l) = (0.35 / cap(sun_r), 0.6 / (cap(glare_r) - cap(sun_r)));
+    let radius = |sky: f64| {
+        let sky_l = sky / (4.0 * std::f64::consts::PI);
+        let map = LatLongDirs::new(1024, 512).map(|d| {
+            let c = d.dot(centre);
+            let y = sky_l
+                + if c >= sun_r.cos() {
+                    sun_l
+                } else if c >= glare_r.cos() {
+                    glare_l
+                } else {
+                    0.0
+                };
+            [y as f32; 3]
+        });
+        let out = Extractor::new().extract(&map, &opts(16, Domain::Sphere, Method::Voronoi));
+        let light = out
+            .lights
+            .iter()
+            .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
+            .unwrap();
+        let total: f64 = out.lights.iter().map(|l| l.luminance()).sum();
+        (
+            (light.angular_radius as f64).to_degrees(),
+            light.luminance() / total,
+        )
+    };
+    // The whole sky as bright as sun and glare together, and a hundredth of that.
+    let ((with_sky, share), (alone, _)) = (radius(0.95), radius(0.0095));
+    assert!(
+        with_sky < glare_r.to_degrees() && (with_sky / alone - 1.0).abs() < 0.5,
+        "sun in glare: radius {with_sky}° over a sky (the light holds {share:.3} of the map), \
+         {alone}° over a dim one"
+    );
+}
+
 /// ALGORITHMS.md §12, "Not across the horizon": no light's disc crosses the horizon, on every
 /// map and on a sky that is brightest in a wide band just above it (where a cell's core spreads
 /// over tens of degrees and the unclamped disc would reach below the horizon). That a light high

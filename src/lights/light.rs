@@ -119,47 +119,136 @@ pub fn total_irradiance(lights: &[Light]) -> [f64; 3] {
     s
 }
 
-/// The angular radius of a cell with a bright core (ALGORITHMS.md §12, "Core and rest"): the
-/// uniform disc whose half-energy radius is the cell's, with its core and the rest of it each
-/// taken as a uniform disc about the same centre, of the RMS spread each has. `cell` and `core`
-/// are (P, |M|) over the cell and over its core. Where the core holds most of the light (a clear
-/// sun in its faint glare) this is about the core's own radius, which a faint wide halo cannot
-/// carry off as it does the whole cell's RMS; where the rest holds most (a sun through haze or
-/// leaves, a lamp in its glow) the disc widens toward the rest's, and it is continuous between.
-pub fn core_halo_radius(cell: (f64, f64), core: (f64, f64)) -> f32 {
-    let ((p, m), (pc, mc)) = (cell, core);
-    if !(p.is_finite() && m.is_finite() && pc.is_finite() && mc.is_finite()) || p <= 0.0 {
+/// Bins of the rest of a cell (outside its core) by angle about its centroid (ALGORITHMS.md
+/// §12, "Core and rest"): by x = 1 − cos θ, [`ANGLE_BINS_PER_OCTAVE`] to an octave of x from 2⁻²⁴ (θ = 0.02°) up
+/// to 2 (θ = 180°), so a half-energy radius is known to 9 % in θ at any scale.
+pub const ANGLE_BINS: usize = 100;
+const ANGLE_BINS_PER_OCTAVE: f32 = 4.0;
+const ANGLE_SMALLEST_OCTAVE: f32 = -24.0;
+
+/// log₂ x to within 0.09, monotone and piecewise linear, from the float's bits: a bin's edges are
+/// then exact inverses ([`angle_bin_start`]).
+fn rough_log2(x: f32) -> f32 {
+    x.to_bits() as f32 / (1u32 << 23) as f32 - 127.0
+}
+
+/// The bin that x = 1 − cos θ ≥ 0 falls in.
+pub fn angle_bin(x: f32) -> usize {
+    // NaN and x ≤ 0 (a texel at the centroid, to rounding) go to the first bin.
+    if x.is_nan() || x <= 0.0 {
+        return 0;
+    }
+    let b = (rough_log2(x) - ANGLE_SMALLEST_OCTAVE) * ANGLE_BINS_PER_OCTAVE;
+    (b.max(0.0) as usize).min(ANGLE_BINS - 1)
+}
+
+/// [`angle_bin_start`] of every bin and one past the last.
+static ANGLE_BIN_STARTS: std::sync::LazyLock<[f64; ANGLE_BINS + 1]> =
+    std::sync::LazyLock::new(|| std::array::from_fn(angle_bin_start));
+
+/// The smallest x of bin `b` (0 for the first, 2 past the last).
+fn angle_bin_start(b: usize) -> f64 {
+    match b {
+        0 => 0.0,
+        ANGLE_BINS.. => 2.0,
+        _ => {
+            let l = b as f32 / ANGLE_BINS_PER_OCTAVE + ANGLE_SMALLEST_OCTAVE;
+            f32::from_bits(((l + 127.0) * (1u32 << 23) as f32) as u32) as f64
+        }
+    }
+}
+
+/// The angular radius of a cell (ALGORITHMS.md §12, "Core and rest"): the uniform disc with the
+/// cell's half-energy radius √2·θ₅₀ about its centroid, its core (its brightest texels) taken as a
+/// uniform disc of its RMS spread, `core` = (P, |M|) over it, and the rest as it lies, `rest` its
+/// luminance by [`angle_bin`] of 1 − cos θ, each bin even in x. A median, unlike an RMS, is
+/// carried off neither by a sun's faint wide glare (a clear sun keeps about its own radius) nor
+/// by the sky far from a sun in a bright glow that its cell also holds (the glow's radius). The
+/// core's moments see inside a texel, which a 0.27° sun in 1° texels needs.
+pub fn core_rest_radius(core: (f64, f64), rest: &[f32]) -> f32 {
+    let (pc, mc) = core;
+    let pr: f64 = rest.iter().map(|&y| y as f64).sum();
+    if !(pc.is_finite() && mc.is_finite() && pr.is_finite()) {
         return 0.0;
     }
-    if pc <= 0.0 {
-        return angular_radius(p, m);
+    let pc = pc.max(0.0);
+    if pc + pr <= 0.0 {
+        return 0.0;
     }
-    let r_core = angular_radius(pc, mc) as f64;
-    if pc >= p {
-        return r_core as f32;
-    }
-    let (share, rest) = (pc / p, p - pc);
-    // The rest's k-means energy P − |M| is the cell's less the core's (§10); its disc is at
-    // least as wide as the core's.
-    let rest_spread = ((p - m) - (pc - mc)).max(0.0) / rest;
-    let r_rest = (2.0 * rest_spread.min(1.0).sqrt()).max(r_core);
-    let (c2, h2) = (r_core * r_core, r_rest * r_rest);
-    // Energy within ρ of the centre: share·ρ²/c² + (1 − share)·ρ²/h² while ρ ≤ r_core, then
-    // share + (1 − share)·ρ²/h²; ρ₅₀ where that is one half.
-    let outside = h2 * (0.5 - share) / (1.0 - share);
-    let rho2 = if c2 > 0.0 {
-        let inside = 0.5 / (share / c2 + (1.0 - share) / h2);
-        if inside <= c2 { inside } else { outside }
+    // A uniform disc of radius r is even in x = 1 − cos θ ≈ θ²/2 up to r²/2, and its 1 − |M|/P
+    // is the mean x, r²/4.
+    let x_core = if pc > 0.0 {
+        2.0 * (1.0 - mc / pc).clamp(0.0, 1.0)
     } else {
-        outside.max(0.0)
+        0.0
     };
+    let core_within = |x: f64| {
+        if x >= x_core { pc } else { pc * x / x_core }
+    };
+    let half = 0.5 * (pc + pr);
+    // Walk the bins, the core's edge a kink inside one, to where half the energy lies within x.
+    let starts = &*ANGLE_BIN_STARTS;
+    let mut rest_below = 0.0;
+    let mut x50 = 2.0;
+    'bins: for (b, &y) in rest.iter().enumerate().take(ANGLE_BINS) {
+        let y = if y > 0.0 { y as f64 } else { 0.0 };
+        let (lo, hi) = (starts[b], starts[b + 1]);
+        if core_within(hi) + rest_below + y < half {
+            rest_below += y;
+            continue;
+        }
+        let within = |x: f64| core_within(x) + rest_below + y * (x - lo) / (hi - lo);
+        let kink = x_core.clamp(lo, hi);
+        for (x0, x1) in [(lo, kink), (kink, hi)] {
+            let (e0, e1) = (within(x0), within(x1));
+            if e0 >= half {
+                x50 = x0;
+                break 'bins;
+            }
+            if e1 >= half {
+                x50 = x0 + (x1 - x0) * (half - e0) / (e1 - e0);
+                break 'bins;
+            }
+        }
+        rest_below += y;
+    }
+    let theta50 = 2.0 * (x50.clamp(0.0, 2.0) / 2.0).sqrt().asin();
     // A uniform disc of radius R holds half its energy within R/√2.
-    (2.0 * rho2).sqrt().min(std::f64::consts::PI) as f32
+    (std::f64::consts::SQRT_2 * theta50).min(std::f64::consts::PI) as f32
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `p` spread evenly in x = 1 − cos θ over [x0, x1) (a uniform cap from x0 = 0, a ring
+    /// beyond), added into a cell's bins.
+    fn add_even(bins: &mut [f32], p: f64, x0: f64, x1: f64) {
+        for (b, y) in bins.iter_mut().enumerate() {
+            let (lo, hi) = (angle_bin_start(b).max(x0), angle_bin_start(b + 1).min(x1));
+            if hi > lo {
+                *y += (p * (hi - lo) / (x1 - x0)) as f32;
+            }
+        }
+    }
+
+    fn x_of(theta: f64) -> f64 {
+        1.0 - theta.cos()
+    }
+
+    /// The disc radius √2·θ₅₀ of an energy profile `within(x)`, by bisection on x.
+    fn median_disc(within: impl Fn(f64) -> f64, total: f64) -> f64 {
+        let (mut lo, mut hi) = (0.0, 2.0);
+        for _ in 0..200 {
+            let mid = 0.5 * (lo + hi);
+            if within(mid) < 0.5 * total {
+                lo = mid
+            } else {
+                hi = mid
+            }
+        }
+        std::f64::consts::SQRT_2 * 2.0 * (lo / 2.0).sqrt().asin()
+    }
 
     /// (P, |M|) of a uniform disc of radius `r` (radians) holding `p`: |M| = P·(1 − r²/4)
     /// (ALGORITHMS.md §12), so that `angular_radius` gives back `r`.
@@ -167,55 +256,47 @@ mod tests {
         (p, p * (1.0 - r * r / 4.0))
     }
 
-    /// A core of `share` on a disc of radius `rc` and the rest on a disc of radius `rh`.
-    fn cell(share: f64, rc: f64, rh: f64) -> ((f64, f64), (f64, f64)) {
-        let (core, rest) = (disc(share, rc), disc(1.0 - share, rh));
-        ((core.0 + rest.0, core.1 + rest.1), core)
+    /// A core of `share` on a disc of radius `rc` (by its moments) and the rest on a uniform cap
+    /// of radius `rh` (by its bins): the radius, and the bisected median's.
+    fn core_and_cap(share: f64, rc: f64, rh: f64) -> (f32, f64) {
+        let mut bins = vec![0.0; ANGLE_BINS];
+        add_even(&mut bins, 1.0 - share, 0.0, x_of(rh));
+        let x_core = rc * rc / 2.0;
+        let within =
+            |x: f64| share * (x / x_core).min(1.0) + (1.0 - share) * (x / x_of(rh)).min(1.0);
+        (
+            core_rest_radius(disc(share, rc), &bins),
+            median_disc(within, 1.0),
+        )
     }
 
     #[test]
-    fn the_half_energy_disc_matches_the_two_disc_median() {
+    fn the_radius_is_the_half_energy_disc_of_core_and_rest() {
         let (rc, rh) = (0.5f64.to_radians(), 4f64.to_radians());
-        for share in [0.05, 0.2, 0.3, 0.45, 0.6, 0.8, 0.95] {
-            let (c, k) = cell(share, rc, rh);
-            // Energy within ρ: share·min(ρ/rc, 1)² + (1 − share)·(ρ/rh)²; bisect for one half.
-            let within =
-                |rho: f64| share * (rho / rc).min(1.0).powi(2) + (1.0 - share) * (rho / rh).powi(2);
-            let (mut lo, mut hi) = (0.0, rh);
-            for _ in 0..100 {
-                let mid = 0.5 * (lo + hi);
-                if within(mid) < 0.5 {
-                    lo = mid
-                } else {
-                    hi = mid
-                }
-            }
-            let expected = std::f64::consts::SQRT_2 * lo;
-            let got = core_halo_radius(c, k) as f64;
+        for share in [0.0, 0.05, 0.2, 0.3, 0.45, 0.6, 0.8, 0.95, 1.0] {
+            let (got, expected) = core_and_cap(share, rc, rh);
             assert!(
-                (got - expected).abs() <= 1e-4 * expected,
+                (got as f64 - expected).abs() <= 1e-4 * expected,
                 "share {share}: {got} vs {expected}"
             );
         }
+        // All rest: the cap's radius (√2·θ₅₀ of a cap is its radius to second order); all core:
+        // the core's.
+        assert!((core_and_cap(0.0, rc, rh).0 as f64 - rh).abs() < 1e-3 * rh);
+        assert!((core_and_cap(1.0, rc, rh).0 as f64 - rc).abs() < 1e-3 * rc);
     }
 
     #[test]
     fn the_radius_runs_from_the_rests_to_the_cores_without_a_jump() {
         let (rc, rh) = (0.3f64.to_radians(), 6f64.to_radians());
-        let radius = |s: f64| {
-            let (c, k) = cell(s, rc, rh);
-            core_halo_radius(c, k) as f64
-        };
-        // All rest: the rest's disc; all core: the core's.
-        assert!((radius(1e-9) - rh).abs() < 1e-3 * rh);
-        assert!((radius(1.0 - 1e-9) - rc).abs() < 1e-3 * rc);
+        let radius = |s: f64| core_and_cap(s, rc, rh).0 as f64;
         // Monotone in the core's share, and continuous: no step between shares 10⁻⁷ apart
         // (a threshold between the two radii would step by up to rh − rc anywhere).
         let mut last = radius(0.001);
         for i in 2..1000 {
             let s = i as f64 / 1000.0;
             let r = radius(s);
-            assert!(r <= last + 1e-9, "not monotone at share {s}");
+            assert!(r <= last + 1e-7, "not monotone at share {s}");
             assert!(
                 (radius(s + 1e-7) - r).abs() < 1e-3 * rh,
                 "step at share {s}"
@@ -227,32 +308,78 @@ mod tests {
     #[test]
     fn a_faint_wide_halo_leaves_a_clear_sun_its_own_radius() {
         // A 0.27° sun holding 80 % of its cell, the rest spread over 20°: the cell's RMS disc
-        // would be degrees wide; the half-energy disc is √(1/(2·0.625))… = 1.118 × the sun's.
+        // would be degrees wide; the half-energy disc is about √(2·0.5/0.8) = 1.118 × the sun's.
         let (rc, rh) = (0.27f64.to_radians(), 20f64.to_radians());
-        let (c, k) = cell(0.8, rc, rh);
-        let r = core_halo_radius(c, k) as f64;
+        let r = core_and_cap(0.8, rc, rh).0 as f64;
         assert!(
             r > rc && r < 1.12 * rc,
             "{} vs sun {}",
             r.to_degrees(),
             rc.to_degrees()
         );
-        assert!((angular_radius(c.0, c.1) as f64) > 10.0 * rc);
     }
 
     #[test]
-    fn bad_moments_give_a_finite_radius() {
-        for (c, k) in [
-            ((0.0, 0.0), (0.0, 0.0)),
-            ((1.0, f64::NAN), (0.5, 0.5)),
-            ((1.0, 0.9), (0.0, 0.0)),
-            ((1.0, 1.2), (0.5, 0.6)),
-            ((1.0, 0.5), (1.0, 1.0)),
+    fn a_little_far_sky_does_not_carry_a_glare_off() {
+        // A 0.27° sun (40 %) in a uniform 2° glare (57 %), and 3 % of sky 20–40° away, as a
+        // sun's cell at 16 lights holds: about the glare's median, where the rest taken as one
+        // disc of its RMS spread (the sky's 3 % over 30° and the glare's 2°) gave 4.3°.
+        let (rc, rg) = (0.27f64.to_radians(), 2f64.to_radians());
+        let (s0, s1) = (x_of(20f64.to_radians()), x_of(40f64.to_radians()));
+        let mut bins = vec![0.0; ANGLE_BINS];
+        add_even(&mut bins, 0.57, 0.0, x_of(rg));
+        add_even(&mut bins, 0.03, s0, s1);
+        let within = |x: f64| {
+            0.4 * (x / (rc * rc / 2.0)).min(1.0)
+                + 0.57 * (x / x_of(rg)).min(1.0)
+                + 0.03 * ((x - s0) / (s1 - s0)).clamp(0.0, 1.0)
+        };
+        let expected = median_disc(within, 1.0);
+        let got = core_rest_radius(disc(0.4, rc), &bins) as f64;
+        assert!(
+            (got - expected).abs() <= 1e-4 * expected,
+            "{got} vs {expected}"
+        );
+        assert!(got < rg, "{}°", got.to_degrees());
+    }
+
+    #[test]
+    fn the_bins_cover_every_angle_in_order() {
+        assert_eq!(angle_bin(0.0), 0);
+        assert_eq!(angle_bin(f32::NAN), 0);
+        assert_eq!(angle_bin(2.0), ANGLE_BINS - 1);
+        for b in 0..ANGLE_BINS {
+            assert!(angle_bin_start(b) < angle_bin_start(b + 1), "bin {b}");
+        }
+        for i in 0..20_000 {
+            let x = (2.0f64).powf(-26.0 + 27.0 * i as f64 / 20_000.0).min(2.0) as f32;
+            let b = angle_bin(x);
+            let x = x as f64;
+            assert!(
+                (b == 0 || angle_bin_start(b) <= x)
+                    && (b == ANGLE_BINS - 1 || x < angle_bin_start(b + 1)),
+                "x {x} in bin {b}"
+            );
+        }
+    }
+
+    #[test]
+    fn bad_input_gives_a_finite_radius() {
+        let bins = |y: f32| vec![y; ANGLE_BINS];
+        for (core, rest) in [
+            ((0.0, 0.0), bins(0.0)),
+            ((1.0, f64::NAN), bins(0.1)),
+            ((0.0, 0.0), bins(0.1)),
+            ((1.0, 1.2), bins(0.0)),
+            ((1.0, 0.5), bins(f32::INFINITY)),
+            ((1.0, 0.5), bins(f32::NAN)),
+            ((-1.0, 0.5), bins(-0.1)),
         ] {
-            let r = core_halo_radius(c, k);
+            let r = core_rest_radius(core, &rest);
             assert!(
                 r.is_finite() && (0.0..=std::f32::consts::PI).contains(&r),
-                "{c:?} {k:?}: {r}"
+                "{core:?} {:?}: {r}",
+                rest[0]
             );
         }
     }

@@ -24,8 +24,8 @@ mod tilt;
 pub mod vmlps;
 
 pub use light::{
-    Light, PRIMARY_CLUSTER_DEG, PrimaryLight, angular_radius, core_halo_radius, horizon_gap,
-    primary_light, total_irradiance,
+    ANGLE_BINS, Light, PRIMARY_CLUSTER_DEG, PrimaryLight, angle_bin, angular_radius,
+    core_rest_radius, horizon_gap, primary_light, total_irradiance,
 };
 
 use crate::envmap::EnvMap;
@@ -212,6 +212,11 @@ pub struct Extractor {
     paper_cells: HashMap<usize, Vec<u16>>,
     seeds: Vec<Vec3>,
     accum: Vec<CellAccum>,
+    /// Each cell's rest (its texels outside its core) by angle about its centroid,
+    /// [`ANGLE_BINS`] per cell, and the centroids: the lights' radii (ALGORITHMS.md §12, "Core
+    /// and rest").
+    rest_bins: Vec<f32>,
+    centroids: Vec<Vec3>,
     median_cut: median_cut::MedianCut,
     /// Extra Lloyd steps of the voronoi method (0: the one step of ALGORITHMS.md §4).
     refine: usize,
@@ -630,7 +635,7 @@ struct CellAccum {
     /// Texels whose nearest seed this is.
     texels: u32,
     /// The cell's brightest texel luminance, and P and |M| over its core (the texels of at least
-    /// [`CORE_FRACTION`] of it), for the angular radius.
+    /// [`CORE_FRACTION`] of it), for the angular radius and the tilt.
     peak: f32,
     core_lum: f64,
     core_moment: DVec3,
@@ -658,12 +663,14 @@ impl CellAccum {
     /// Adds texel `t` to the core's sums if it is in the core (at least [`CORE_FRACTION`] of the
     /// cell's peak).
     #[inline(always)]
-    fn add_core_texel(&mut self, image: &DomainImage, t: usize) {
+    fn add_core_texel(&mut self, image: &DomainImage, t: usize) -> bool {
         let y = image.luminance[t];
-        if y > 0.0 && y >= CORE_FRACTION * self.peak {
+        let core = y > 0.0 && y >= CORE_FRACTION * self.peak;
+        if core {
             self.core_lum += y as f64;
             self.core_moment += Vec3::from_array(image.moment[t]).as_dvec3();
         }
+        core
     }
 
     /// Whether the cell could spare a texel to a light without energy.
@@ -675,10 +682,10 @@ impl CellAccum {
 /// Light counts (with their domain and side) whose last lights video mode keeps at most.
 const MAX_VIDEO_COUNTS: usize = 32;
 
-/// Texels of at least this fraction of their cell's peak luminance form the cell's core, whose
-/// spread is the light's angular radius: a shadow's penumbra comes from the bright core, and the
-/// faint wide halo of a cell around the sun (the glare its Voronoi cell also holds) would
-/// otherwise blur a sun's sharp shadow over degrees (measured: a 2.2° radius for a 0.27° sun).
+/// Texels of at least this fraction of their cell's peak luminance form the cell's core: its
+/// moments give the disc of a compact bright source (a sun in its glare, a lamp) inside a texel,
+/// beside the rest of the cell binned by angle (ALGORITHMS.md §12, "Core and rest"); and the tilt
+/// leaves a light whose core is compact in a wider cell alone (§4.2, "Tilt"; `TILT_CORE_SHARE`).
 pub const CORE_FRACTION: f32 = 0.25;
 
 impl Default for Extractor {
@@ -694,6 +701,8 @@ impl Default for Extractor {
             paper_cells: HashMap::new(),
             seeds: Vec::new(),
             accum: Vec::new(),
+            rest_bins: Vec::new(),
+            centroids: Vec::new(),
             median_cut: Default::default(),
             refine: DEFAULT_REFINE,
             inverse_cdf: Default::default(),
@@ -1659,9 +1668,26 @@ impl Extractor {
             }
         }
         if !half {
-            // The cores: a second pass over the texels, by the owners just recorded.
+            // The cores, and each cell's rest by angle about its centroid: a second pass over
+            // the texels, by the owners just recorded (ALGORITHMS.md §12). A texel counts at its
+            // own mean 1 − cos θ, (Y − M·c)/Y.
+            self.centroids.clear();
+            self.centroids.extend(
+                self.accum
+                    .iter()
+                    .map(|a| a.weighted_dir.as_vec3().normalize_or_zero()),
+            );
+            self.rest_bins.clear();
+            self.rest_bins.resize(self.accum.len() * ANGLE_BINS, 0.0);
             for (t, &k) in self.owner.iter().enumerate() {
-                self.accum[k as usize].add_core_texel(image, t);
+                let k = k as usize;
+                if !self.accum[k].add_core_texel(image, t) {
+                    let y = image.luminance[t];
+                    if y > 0.0 {
+                        let x = 1.0 - Vec3::from_array(image.moment[t]).dot(self.centroids[k]) / y;
+                        self.rest_bins[k * ANGLE_BINS + angle_bin(x)] += y;
+                    }
+                }
             }
         }
         // Move each light to its cell's luminance-weighted centroid; a dark or empty cell keeps
@@ -1685,14 +1711,13 @@ impl Extractor {
             .map(|(k, (a, &seed))| {
                 let d = dir(a, seed);
                 // Where the cores were measured (the spherical cells): the disc with the cell's
-                // half-energy radius, core and rest each a disc (ALGORITHMS.md §12). Else the
-                // whole cell's spread about the light's direction (the paper variant's lights
-                // sit at their seeds): P − M·d.
-                let radius = if a.core_lum > 0.0 {
-                    core_halo_radius(
-                        (a.lum, a.weighted_dir.length()),
-                        (a.core_lum, a.core_moment.length()),
-                    )
+                // half-energy radius, of its core's disc and its rest by angle (ALGORITHMS.md
+                // §12). Else the whole cell's spread
+                // about the light's direction (the paper variant's lights sit at their seeds):
+                // P − M·d.
+                let rest = self.rest_bins.get(k * ANGLE_BINS..(k + 1) * ANGLE_BINS);
+                let radius = if let Some(rest) = rest.filter(|_| a.core_lum > 0.0) {
+                    core_rest_radius((a.core_lum, a.core_moment.length()), rest)
                 } else {
                     let along = a.weighted_dir.dot(d.as_dvec3().normalize_or_zero());
                     angular_radius(a.lum, along)
