@@ -120,8 +120,8 @@ pub fn total_irradiance(lights: &[Light]) -> [f64; 3] {
 }
 
 /// Bins of the rest of a cell (outside its core) by angle about its centroid (ALGORITHMS.md
-/// §12, "Core and rest"): by x = 1 − cos θ, [`ANGLE_BINS_PER_OCTAVE`] to an octave of x from 2⁻²⁴ (θ = 0.02°) up
-/// to 2 (θ = 180°), so a half-energy radius is known to 9 % in θ at any scale.
+/// §12, "Core and rest"): by x = 1 − cos θ, `ANGLE_BINS_PER_OCTAVE` to an octave of x from 2⁻²⁴
+/// (θ = 0.02°) up to 2 (θ = 180°), so a half-energy radius is known to 9 % in θ at any scale.
 pub const ANGLE_BINS: usize = 100;
 const ANGLE_BINS_PER_OCTAVE: f32 = 4.0;
 const ANGLE_SMALLEST_OCTAVE: f32 = -24.0;
