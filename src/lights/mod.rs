@@ -23,9 +23,10 @@ pub mod sh;
 mod tilt;
 pub mod vmlps;
 
+use light::{ANGLE_BINS, angle_bin};
 pub use light::{
-    ANGLE_BINS, Light, PRIMARY_CLUSTER_DEG, PrimaryLight, angle_bin, angular_radius,
-    core_rest_radius, horizon_gap, primary_light, total_irradiance,
+    Light, PRIMARY_CLUSTER_DEG, PrimaryLight, angular_radius, core_rest_radius, horizon_gap,
+    primary_light, total_irradiance,
 };
 
 use crate::envmap::EnvMap;
@@ -1712,9 +1713,8 @@ impl Extractor {
                 let d = dir(a, seed);
                 // Where the cores were measured (the spherical cells): the disc with the cell's
                 // half-energy radius, of its core's disc and its rest by angle (ALGORITHMS.md
-                // §12). Else the whole cell's spread
-                // about the light's direction (the paper variant's lights sit at their seeds):
-                // P − M·d.
+                // §12). Else the whole cell's spread about the light's direction (the paper
+                // variant's lights sit at their seeds): P − M·d.
                 let rest = self.rest_bins.get(k * ANGLE_BINS..(k + 1) * ANGLE_BINS);
                 let radius = if let Some(rest) = rest.filter(|_| a.core_lum > 0.0) {
                     core_rest_radius((a.core_lum, a.core_moment.length()), rest)

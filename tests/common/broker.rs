@@ -85,11 +85,16 @@ pub struct Broker {
 
 /// A port free now on 127.0.0.1.
 pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    free_ports::<1>()[0]
+}
+
+/// `N` distinct ports free now on 127.0.0.1: all held open until each is chosen, since a port
+/// just let go can be handed out again at once (two of one broker's listeners once got the same).
+pub fn free_ports<const N: usize>() -> [u16; N] {
+    let held: Vec<std::net::TcpListener> = (0..N)
+        .map(|_| std::net::TcpListener::bind("127.0.0.1:0").unwrap())
+        .collect();
+    std::array::from_fn(|i| held[i].local_addr().unwrap().port())
 }
 
 impl Broker {
@@ -100,19 +105,36 @@ impl Broker {
             free_port()
         ));
         std::fs::create_dir_all(&dir).unwrap();
+        let [port, ws_port, http_port] = free_ports();
         let mut b = Broker {
             child: None,
-            port: free_port(),
-            ws_port: free_port(),
-            http_port: free_port(),
+            port,
+            ws_port,
+            http_port,
             dir,
             settings,
         };
+        // Another process may take a port between choosing it and the server binding it: then
+        // the server exits at once, and it starts again on new ports.
+        for _ in 0..3 {
+            if b.try_spawn().is_ok() {
+                return b;
+            }
+            [b.port, b.ws_port, b.http_port] = free_ports();
+        }
         b.spawn();
         b
     }
 
     fn spawn(&mut self) {
+        if let Err(log) = self.try_spawn() {
+            panic!("nats-server did not come up: {log}");
+        }
+    }
+
+    /// Starts the server and waits for its ports; the server's log if it exits or is not up in
+    /// 15 s.
+    fn try_spawn(&mut self) -> Result<(), String> {
         let conf = self.dir.join("nats.conf");
         let store = self.dir.join("js");
         let jetstream = if self.settings.jetstream {
@@ -159,13 +181,16 @@ impl Broker {
                 .is_ok()
             });
             if up {
-                break;
+                return Ok(());
             }
-            assert!(
-                Instant::now() < deadline,
-                "nats-server did not come up: {}",
-                std::fs::read_to_string(self.dir.join("nats.log")).unwrap_or_default()
-            );
+            let exited = self
+                .child
+                .as_mut()
+                .is_some_and(|c| c.try_wait().ok().flatten().is_some());
+            if exited || Instant::now() >= deadline {
+                self.kill();
+                return Err(std::fs::read_to_string(self.dir.join("nats.log")).unwrap_or_default());
+            }
             std::thread::sleep(Duration::from_millis(50));
         }
     }
