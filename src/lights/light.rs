@@ -161,7 +161,7 @@ fn angle_bin_start(b: usize) -> f64 {
 /// The angular radius of a cell (ALGORITHMS.md §12, "Core and rest"): the uniform disc with the
 /// cell's half-energy radius √2·θ₅₀ about its centroid, its core (its brightest texels) taken as a
 /// uniform disc of its RMS spread, `core` = (P, |M|) over it, and the rest as it lies, `rest` its
-/// luminance by [`angle_bin`] of 1 − cos θ, each bin even in x. A median, unlike an RMS, is
+/// luminance by `angle_bin` of 1 − cos θ, each bin even in x. A median, unlike an RMS, is
 /// carried off neither by a sun's faint wide glare (a clear sun keeps about its own radius) nor
 /// by the sky far from a sun in a bright glow that its cell also holds (the glow's radius). The
 /// core's moments see inside a texel, which a 0.27° sun in 1° texels needs.
