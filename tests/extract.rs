@@ -6,7 +6,7 @@ use common::{MAPS, assert_valid, lightset_validator, load};
 use glam::DVec3;
 use vemlight::envmap::{EnvMap, Lens, Projection};
 use vemlight::lights::error::{IrradianceReference, relative_error};
-use vemlight::lights::{ExtractOptions, Extractor, FrameRequest, Method, total_irradiance};
+use vemlight::lights::{ExtractOptions, Extractor, FrameRequest, Light, Method, total_irradiance};
 use vemlight::lightset::{LightRequest, lightset_for_map};
 use vemlight::mapping::Domain;
 use vemlight::sampling::Resampler;
@@ -29,6 +29,14 @@ fn opts(lights: usize, domain: Domain, method: Method) -> ExtractOptions {
         method,
         side: None,
     }
+}
+
+/// The light carrying the most luminance.
+fn brightest(lights: &[Light]) -> &Light {
+    lights
+        .iter()
+        .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
+        .expect("at least one light")
 }
 
 fn rel(a: f64, b: f64) -> f64 {
@@ -244,11 +252,7 @@ fn hot_pixel_latlong_direction() {
         let texel = std::f64::consts::PI / h as f64;
         for method in METHODS {
             let out = ex.extract(&map, &opts(16, Domain::Sphere, method));
-            let best = out
-                .lights
-                .iter()
-                .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
-                .unwrap();
+            let best = brightest(&out.lights);
             let angle = best.dir().dot(want).clamp(-1.0, 1.0).acos();
             // Median cut and Voronoi centre the light on the pixel's energy (first moment), so
             // they are within a source texel. The paper variant's light sits at a warped point: in
@@ -303,11 +307,7 @@ fn hot_pixel_fisheye_direction() {
                 "{lens:?}: pixel ({i},{j}) looks along {dir}"
             );
             let out = ex.extract(&map, &opts(16, Domain::Upper, Method::Voronoi));
-            let best = out
-                .lights
-                .iter()
-                .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
-                .unwrap();
+            let best = brightest(&out.lights);
             let angle = best.dir().dot(dir).clamp(-1.0, 1.0).acos().to_degrees();
             assert!(
                 angle < 0.4,
@@ -671,26 +671,18 @@ fn a_disc_source_gives_a_light_of_its_radius() {
         // One light: its cell is the whole sphere, its core the disc (the dim background is
         // under a quarter of the disc's radiance).
         let out = Extractor::new().extract(&map, &opts(1, Domain::Sphere, Method::Voronoi));
-        let brightest = out
-            .lights
-            .iter()
-            .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
-            .unwrap();
-        let got = (brightest.angular_radius as f64).to_degrees();
+        let light = brightest(&out.lights);
+        let got = (light.angular_radius as f64).to_degrees();
         assert!(
             (got - radius_deg).abs() < 0.15 * radius_deg,
             "disc of {radius_deg}°: light radius {got}°"
         );
-        assert!(brightest.dir().angle_between(centre).to_degrees() < 0.2);
+        assert!(light.dir().angle_between(centre).to_degrees() < 0.2);
     }
     let sky = hard_sky("sky-high-clear");
     for n in [16, 64, 256] {
         let out = Extractor::new().extract(&sky, &opts(n, Domain::Sphere, Method::Voronoi));
-        let sun = out
-            .lights
-            .iter()
-            .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
-            .unwrap();
+        let sun = brightest(&out.lights);
         let got = (sun.angular_radius as f64).to_degrees();
         assert!(
             (0.15..0.6).contains(&got),
@@ -769,11 +761,7 @@ fn far_sky_in_a_suns_cell_does_not_widen_its_disc() {
             [y as f32; 3]
         });
         let out = Extractor::new().extract(&map, &opts(16, Domain::Sphere, Method::Voronoi));
-        let light = out
-            .lights
-            .iter()
-            .max_by(|a, b| a.luminance().total_cmp(&b.luminance()))
-            .unwrap();
+        let light = brightest(&out.lights);
         let total: f64 = out.lights.iter().map(|l| l.luminance()).sum();
         (
             (light.angular_radius as f64).to_degrees(),
