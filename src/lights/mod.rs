@@ -217,7 +217,7 @@ pub struct Extractor {
     /// [`ANGLE_BINS`] per cell, and the centroids: the lights' radii (ALGORITHMS.md §12, "Core
     /// and rest").
     rest_bins: Vec<f32>,
-    centroids: Vec<Vec3>,
+    centroids: Vec<DVec3>,
     median_cut: median_cut::MedianCut,
     /// Extra Lloyd steps of the voronoi method (0: the one step of ALGORITHMS.md §4).
     refine: usize,
@@ -1671,23 +1671,22 @@ impl Extractor {
         if !half {
             // The cores, and each cell's rest by angle about its centroid: a second pass over
             // the texels, by the owners just recorded (ALGORITHMS.md §12). A texel counts at its
-            // own mean 1 − cos θ, (Y − M·c)/Y.
+            // own mean 1 − cos θ, its farness over its luminance, (Y − M·c)/Y.
             self.centroids.clear();
             self.centroids.extend(
                 self.accum
                     .iter()
-                    .map(|a| a.weighted_dir.as_vec3().normalize_or_zero()),
+                    .map(|a| a.weighted_dir.normalize_or_zero()),
             );
             self.rest_bins.clear();
             self.rest_bins.resize(self.accum.len() * ANGLE_BINS, 0.0);
             for (t, &k) in self.owner.iter().enumerate() {
                 let k = k as usize;
-                if !self.accum[k].add_core_texel(image, t) {
+                if !self.accum[k].add_core_texel(image, t)
+                    && let Some(far) = farness(image, t, self.centroids[k])
+                {
                     let y = image.luminance[t];
-                    if y > 0.0 {
-                        let x = 1.0 - Vec3::from_array(image.moment[t]).dot(self.centroids[k]) / y;
-                        self.rest_bins[k * ANGLE_BINS + angle_bin(x)] += y;
-                    }
+                    self.rest_bins[k * ANGLE_BINS + angle_bin((far / y as f64) as f32)] += y;
                 }
             }
         }
