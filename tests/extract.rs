@@ -1224,3 +1224,65 @@ fn the_tilt_raises_lights_where_the_floor_falls_short() {
         }
     }
 }
+
+/// ALGORITHMS.md §12, "Core split": a sun in a wide glare is one light for the sun at its own
+/// size and one for the rest of its cell, the light cheapest to merge giving way: still N
+/// distinct lights, each with energy, and the same total energy as without the split.
+#[test]
+fn a_sun_in_a_wide_glare_is_split_from_it() {
+    use vemlight::eval::scenes::LatLongDirs;
+    let centre = DVec3::new(-0.5, 0.45, 0.2).normalize();
+    let (sun_r, glare_r) = (0.27f64.to_radians(), 5f64.to_radians());
+    let cap = |r: f64| std::f64::consts::TAU * (1.0 - r.cos());
+    // Shares of the map's energy: sun 0.2, glare 0.4, the upper sky 0.4.
+    let (sun_l, glare_l) = (0.2 / cap(sun_r), 0.4 / (cap(glare_r) - cap(sun_r)));
+    let sky_l = 0.4 / std::f64::consts::TAU;
+    let map = LatLongDirs::new(1024, 512).map(|d| {
+        let c = d.dot(centre);
+        let y = if c >= sun_r.cos() {
+            sun_l
+        } else if c >= glare_r.cos() {
+            glare_l
+        } else {
+            0.0
+        } + if d.y > 0.0 { sky_l } else { 0.0 };
+        [y as f32; 3]
+    });
+    let n = 64;
+    let run = |split: bool| {
+        let mut ex = Extractor::new();
+        ex.set_core_split(split);
+        ex.extract(&map, &opts(n, Domain::Sphere, Method::Voronoi))
+            .lights
+    };
+    let (split, whole) = (run(true), run(false));
+    let total = |ls: &[Light]| ls.iter().map(|l| l.luminance()).sum::<f64>();
+    assert_eq!(split.len(), n);
+    let mut ids: Vec<u32> = split.iter().map(|l| l.id).collect();
+    ids.sort_unstable();
+    assert_eq!(ids, (0..n as u32).collect::<Vec<_>>());
+    assert!(split.iter().all(|l| l.carries_energy()));
+    assert!(rel(total(&split), total(&whole)) < 1e-4, "energy changed");
+    let deg = |l: &Light| (l.angular_radius as f64).to_degrees();
+    let off = |l: &Light| l.dir().angle_between(centre).to_degrees();
+    // The sun's light: on the sun, at its size, with about its energy (0.2 of the map; its
+    // texels hold a little glare too).
+    let sun = brightest(&split);
+    let share = sun.luminance() / total(&split);
+    assert!(
+        off(sun) < 0.3 && deg(sun) < 0.6 && (0.15..0.3).contains(&share),
+        "sun's light {:.2}° off, radius {:.2}°, share {share:.3}",
+        off(sun),
+        deg(sun)
+    );
+    // The rest of its cell, a glare even about the sun: a second light on the sun, wider. Without
+    // the split the sun has one light there.
+    let on_sun = |ls: &[Light]| ls.iter().filter(|l| off(l) < 1.0).count();
+    assert!(
+        split
+            .iter()
+            .any(|l| l.id != sun.id && off(l) < 1.0 && deg(l) > 4.0 * deg(sun)),
+        "no light for the glare around the sun"
+    );
+    assert_eq!((on_sun(&split), on_sun(&whole)), (2, 1));
+}
