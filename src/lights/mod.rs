@@ -1303,7 +1303,12 @@ impl Extractor {
             .filter(|&k| {
                 let a = &self.accum[k];
                 let rest = a.lum - a.core_lum;
-                if a.core_lum < mean || rest < CORE_SPLIT_MIN_REST * a.lum {
+                // Both parts need energy and a direction (an all-black map has neither).
+                let parts = a.core_moment.try_normalize().is_some()
+                    && (a.weighted_dir - a.core_moment).try_normalize().is_some();
+                if !(parts && a.core_lum > 0.0 && a.core_lum >= mean)
+                    || rest < CORE_SPLIT_MIN_REST * a.lum
+                {
                     return false;
                 }
                 let core_r = angular_radius(a.core_lum, a.core_moment.length());
