@@ -1351,14 +1351,9 @@ impl Extractor {
         );
         let fewer = self.assign_spherical_once(image, false);
         let fewer = self.repair_dead(image, fewer);
-        // The cell keeps its core (its seed stayed); a neighbour's texels may have changed that.
-        let k = k - usize::from(gone < k);
-        let k = if self.core_to_split(&fewer) == Some(k) {
-            Some(k)
-        } else {
-            self.core_to_split(&fewer)
-        };
-        let k = k.filter(|&k| {
+        // The cells changed around the one given up: the core is chosen again from them
+        // (usually the same cell, its seed kept).
+        let k = self.core_to_split(&fewer).filter(|&k| {
             let mut split = fewer.clone();
             self.split_core(image, &mut split, k);
             // A NaN estimate (it cannot arise from finite lights) fails the comparison.
@@ -1367,7 +1362,8 @@ impl Extractor {
         if k.is_some() {
             *lights = fewer;
         } else {
-            // No core left to split: the lights as they were, from their own cells.
+            // No core left to split, or the split costs the diffuse error too much: the lights
+            // as they were, from their own cells (the tilt reads their sums).
             self.seeds.clear();
             self.seeds
                 .extend(lights.iter().map(|l| Vec3::from_array(l.to_light)));
