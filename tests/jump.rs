@@ -73,6 +73,11 @@ fn rotation<'a>(name: &str, map: &'a EnvMap, pitch: bool, frames: usize, deg: f6
             };
             dirs.rotated(map, rot)
         }),
+        turn_per_frame: Some(if pitch {
+            DQuat::from_rotation_x(step)
+        } else {
+            DQuat::from_rotation_y(step)
+        }),
     }
 }
 
@@ -305,6 +310,7 @@ fn jump_table() {
                 lamp.clone()
             }
         }),
+        turn_per_frame: None,
     });
     for (name, map) in &maps {
         if ["interior.exr", "studio.exr", "sky-high-clear"].contains(&name.as_str()) {

@@ -200,6 +200,7 @@ fn default_flicker_is_bounded_on_every_map_under_slow_rotation() {
             description: String::new(),
             frames: 14,
             render: Box::new(|t| dirs.rotated(&map, glam::DQuat::from_rotation_y(step * t as f64))),
+            turn_per_frame: Some(glam::DQuat::from_rotation_y(step)),
         };
         let rows = run_sequence(&mut seq, 64, Domain::Sphere, false, || {});
         let flicker = |m: Method| {
@@ -225,4 +226,52 @@ fn default_flicker_is_bounded_on_every_map_under_slow_rotation() {
         assert!(v < mc.max(1.05), "{name}: default {v} vs median cut {mc}");
     }
     eprintln!("{}", report.join("\n"));
+}
+
+/// The rigid anchor of a turned map (`eval::temporal`, "rigid") turns the first frame's lights with
+/// the map: on a sky whose energy is nearly all one small sun, turned about +Y, the sun's light then
+/// follows the true sun, so its irradiance changes as the truth's does (flicker 1 up to the dim sky's
+/// share) and errs as little as the first frame did; a light left behind or turned the wrong way
+/// errs by the sun's whole irradiance change.
+#[test]
+fn the_rigid_anchor_follows_a_turned_sun() {
+    use vemlight::eval::scenes::{LatLongDirs, SunSky, dir_from_elev_azim};
+    use vemlight::eval::temporal::{RIGID_NAME, Sequence, run_sequence};
+    let dirs = LatLongDirs::new(256, 128);
+    let map = SunSky {
+        sun_sigma_deg: 1.0,
+        sun_share: 0.95,
+    }
+    .render(&dirs, dir_from_elev_azim(35.0, 30.0));
+    let step = 2f64.to_radians();
+    let mut seq = Sequence {
+        name: "sun".into(),
+        description: String::new(),
+        frames: 24,
+        render: Box::new(|t| dirs.rotated(&map, glam::DQuat::from_rotation_y(step * t as f64))),
+        turn_per_frame: Some(glam::DQuat::from_rotation_y(step)),
+    };
+    let rows = run_sequence(&mut seq, 16, Domain::Sphere, true, || {});
+    let row = |method: &str, filter: &str| {
+        rows.iter()
+            .find(|r| r.method == method && r.filter == filter)
+            .unwrap_or_else(|| panic!("no {method} {filter} row"))
+    };
+    let rigid = row(RIGID_NAME, "none");
+    let default = row(Method::Voronoi.name(), "none");
+    eprintln!(
+        "rigid flicker {:.4} (FIR {:.4}), error {:.4}; default flicker {:.4}, error {:.4}",
+        rigid.flicker,
+        row(RIGID_NAME, "fir").flicker,
+        rigid.rel_rms,
+        default.flicker,
+        default.rel_rms
+    );
+    assert!(
+        (rigid.flicker - 1.0).abs() < 0.05,
+        "rigid flicker {}",
+        rigid.flicker
+    );
+    assert!(rigid.rel_rms < 0.01, "rigid error {}", rigid.rel_rms);
+    assert_eq!(rigid.lights, 16);
 }

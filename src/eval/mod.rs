@@ -315,12 +315,14 @@ fn rotations_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence
             description: format!("{name} rotated {ROTATION_DEG_PER_FRAME}°/frame about +Y"),
             frames,
             render: Box::new(move |t| d1.rotated(map, DQuat::from_rotation_y(step * t as f64))),
+            turn_per_frame: Some(DQuat::from_rotation_y(step)),
         },
         Sequence {
             name: format!("{name}:pitch"),
             description: format!("{name} rotated {ROTATION_DEG_PER_FRAME}°/frame about +X"),
             frames,
             render: Box::new(move |t| d2.rotated(map, DQuat::from_rotation_x(step * t as f64))),
+            turn_per_frame: Some(DQuat::from_rotation_x(step)),
         },
     ]
 }
@@ -343,12 +345,14 @@ fn sequences_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence
             description: "the synthetic sky (Hosek-Wilkie, clouds drifting 2°/s), sun moving 0.25°/frame at 30 frames/s".into(),
             frames,
             render: Box::new(move |t| sky.render(t as f64 / 30.0)),
+            turn_per_frame: None,
         },
         Sequence {
             name: "exposure".into(),
             description: format!("{name}, exposure ramp of +1 % per frame"),
             frames,
             render: Box::new(move |t| scaled(map, 1.01f32.powi(t as i32))),
+            turn_per_frame: None,
         },
         Sequence {
             name: "switch-on".into(),
@@ -357,6 +361,7 @@ fn sequences_for<'a>(name: &str, map: &'a EnvMap, frames: usize) -> Vec<Sequence
             ),
             frames,
             render: Box::new(move |t| if t < on_frame { map.clone() } else { lamp.clone() }),
+            turn_per_frame: None,
         },
     ]);
     seqs
@@ -469,8 +474,9 @@ fn accuracy_markdown(rows: &[AccuracyRow], domains: &[Domain]) -> String {
 /// The temporal table: one row per sequence and method, raw and filtered side by side.
 fn temporal_markdown(rows: &[TemporalRow]) -> String {
     let mut s = format!(
-        "N = {TEMPORAL_N}, whole sphere, {} normals. Flicker ratio: 1 is perfect. Speed: mean / 99th percentile / max of a light id's angle between consecutive frames. Delay: nominal group delay / lag that best aligns E_N with E (frames).\n\n| sequence | method | flicker raw | flicker FIR | error raw | speed raw (°/frame) | speed FIR (°/frame) | delay FIR |\n|---|---|---|---|---|---|---|---|\n",
-        temporal::TEMPORAL_NORMALS
+        "N = {TEMPORAL_N}, whole sphere, {} normals. Flicker ratio: 1 is perfect. Speed: mean / 99th percentile / max of a light id's angle between consecutive frames. Delay: nominal group delay / lag that best aligns E_N with E (frames). `{}`: on a turned map, the default's first-frame lights turned exactly with it, what perfect tracking of that set would give (its floor; ALGORITHMS.md §11).\n\n| sequence | method | flicker raw | flicker FIR | error raw | speed raw (°/frame) | speed FIR (°/frame) | delay FIR |\n|---|---|---|---|---|---|---|---|\n",
+        temporal::TEMPORAL_NORMALS,
+        temporal::RIGID_NAME
     );
     let mut seen: Vec<(&str, &str)> = Vec::new();
     for r in rows {
@@ -505,7 +511,42 @@ fn temporal_markdown(rows: &[TemporalRow]) -> String {
                 .unwrap_or_else(|| format!("0 / {}", r.delay_measured)),
         );
     }
-    s
+    s + &rigid_summary(rows)
+}
+
+/// The default's worst flicker through the FIR beside its rigid floor, and its worst excess
+/// over that floor, over the turned maps.
+fn rigid_summary(rows: &[TemporalRow]) -> String {
+    let fir = |method: &str, sequence: &str| {
+        rows.iter()
+            .find(|r| r.method == method && r.sequence == sequence && r.filter == "fir")
+            .map(|r| r.flicker)
+    };
+    let pairs: Vec<(&str, f64, f64)> = rows
+        .iter()
+        .filter(|r| r.method == temporal::RIGID_NAME && r.filter == "fir")
+        .filter_map(|r| {
+            let default = fir(crate::lights::Method::Voronoi.name(), &r.sequence)?;
+            Some((r.sequence.as_str(), default, r.flicker))
+        })
+        .collect();
+    let worst = pairs.iter().max_by(|a, b| a.1.total_cmp(&b.1));
+    let excess = pairs
+        .iter()
+        .max_by(|a, b| (a.1 - a.2).total_cmp(&(b.1 - b.2)));
+    match (worst, excess) {
+        (Some(w), Some(e)) => format!(
+            "\nDefault through the FIR on the turned maps: worst {:.3} ({}; its rigid floor {:.3}); largest excess over the floor {:+.3} ({}: {:.3} against {:.3}).\n",
+            w.1,
+            w.0,
+            w.2,
+            e.1 - e.2,
+            e.0,
+            e.1,
+            e.2
+        ),
+        _ => String::new(),
+    }
 }
 
 /// Replaces the text between `<!-- BEGIN name -->` and `<!-- END name -->` (kept) with `body`.

@@ -254,6 +254,7 @@ pub fn run(cases: &[HardCase], mut tick: impl FnMut()) -> Vec<StabilityRow> {
                 description: case.description.to_string(),
                 frames: frames.len(),
                 render: Box::new(|t| frames[t].clone()),
+                turn_per_frame: None,
             };
             temporal = run_sequence(&mut seq, HARD_N, Domain::Sphere, false, || {});
         }

@@ -16,6 +16,12 @@
 //!   aligns E_N with E;
 //! - the mean relative RMS error of E_N against the same frame's E.
 //!
+//! A map turned at a constant rate also gets the **rigid** anchor ([`RIGID_NAME`]): the default's
+//! first-frame lights turned exactly with the map, raw and through the same FIR. It is what perfect
+//! tracking of that light set would give: point lights err between their directions, and a normal
+//! sweeping through that error sees E_N wobble where E does not, so its flicker is the floor of
+//! the set, not 1.
+//!
 //! Ground truth per frame: brute force over the frame's pixels binned 4 × 4 (each bin an emitter at
 //! its luminance-weighted mean direction, so the binning error is second order: below 10⁻⁴ relative
 //! for diffuse irradiance), at [`TEMPORAL_NORMALS`] Fibonacci normals — fewer than the accuracy
@@ -29,7 +35,7 @@ use crate::lights::{ExtractOptions, Extractor, Light, Method, sh};
 use crate::mapping::Domain;
 use crate::sampling::Resampler;
 use crate::temporal::{FilterSpec, TemporalFilter};
-use glam::{DVec3, Vec3};
+use glam::{DQuat, DVec3, Vec3};
 
 /// Normals at which E and E_N are compared in the temporal part.
 pub const TEMPORAL_NORMALS: usize = 64;
@@ -37,6 +43,8 @@ pub const TEMPORAL_NORMALS: usize = 64;
 const TRUTH_BIN: usize = 4;
 /// Largest lag searched when measuring the delay, frames.
 const MAX_LAG: usize = 12;
+/// The method name of the rigid anchor's rows.
+pub const RIGID_NAME: &str = "rigid";
 
 /// A named sequence of frames, rendered on demand (frames are not all held in memory).
 pub struct Sequence<'a> {
@@ -44,6 +52,9 @@ pub struct Sequence<'a> {
     pub description: String,
     pub frames: usize,
     pub render: Box<dyn FnMut(usize) -> EnvMap + 'a>,
+    /// For a map turned at a constant rate, the turn from one frame to the next (frame t is the
+    /// map turned by its t-th power): the rigid anchor turns the first frame's lights with it.
+    pub turn_per_frame: Option<DQuat>,
 }
 
 /// The measurements of one method (and filter) on one sequence.
@@ -66,10 +77,20 @@ pub struct TemporalRow {
     pub delay_measured: usize,
 }
 
-/// State of one (variant, filter) pair while a sequence runs.
+/// What a track's series comes from.
+#[derive(Clone, Copy, PartialEq)]
+enum Source {
+    /// The variant of that index.
+    Variant(usize),
+    /// The SH reference line.
+    Sh,
+    /// The variant of that index's first-frame lights, turned with the map.
+    Rigid(usize),
+}
+
+/// State of one (source, filter) pair while a sequence runs.
 struct Track {
-    /// Index into the variants; `None` for the SH line.
-    variant: Option<usize>,
+    source: Source,
     filter: Option<TemporalFilter>,
     series: Vec<Vec<f64>>,
     prev: Vec<Light>,
@@ -125,26 +146,35 @@ pub fn run_variants(
     let normals = fibonacci_sphere(TEMPORAL_NORMALS);
     let fir = FilterSpec::default();
     let mut tracks: Vec<Track> = Vec::new();
-    let track = |variant, filter| Track {
-        variant,
+    let track = |source, filter| Track {
+        source,
         filter,
         series: Vec::new(),
         prev: Vec::new(),
         speeds: Vec::new(),
         worst: None,
     };
-    for v in 0..variants.len() {
+    // The rigid anchor follows the default, where the sequence is a constant turn.
+    let rigid = seq
+        .turn_per_frame
+        .and_then(|_| variants.iter().position(|v| v.method == Method::Voronoi));
+    let sources = (0..variants.len())
+        .map(Source::Variant)
+        .chain(rigid.map(Source::Rigid));
+    for source in sources {
         for filtered in [false, true] {
             if filtered && !with_fir {
                 continue;
             }
-            tracks.push(track(Some(v), filtered.then(|| TemporalFilter::new(&fir))));
+            tracks.push(track(source, filtered.then(|| TemporalFilter::new(&fir))));
         }
     }
     if with_sh {
         // The SH reference line: no lights, no filter.
-        tracks.push(track(None, None));
+        tracks.push(track(Source::Sh, None));
     }
+    let mut first_frame: Vec<Light> = Vec::new();
+    let mut turn = DQuat::IDENTITY;
     let mut resampler: Option<Resampler> = None;
     let mut truth_series = Vec::with_capacity(seq.frames);
 
@@ -163,8 +193,20 @@ pub fn run_variants(
                 v.extractor.extract(&map, &opts).lights
             })
             .collect();
+        if let Some(v) = rigid {
+            if t == 0 {
+                first_frame = outs[v].clone();
+            } else {
+                turn = (seq.turn_per_frame.unwrap_or(DQuat::IDENTITY) * turn).normalize();
+            }
+        }
         for tr in &mut tracks {
-            let Some(variant) = tr.variant else {
+            let raw = match tr.source {
+                Source::Variant(v) => outs[v].clone(),
+                Source::Rigid(_) => turned(&first_frame, turn),
+                Source::Sh => Vec::new(),
+            };
+            if tr.source == Source::Sh {
                 let r = resampler.get_or_insert_with(|| {
                     Resampler::new(map.projection, map.width, map.height, domain, None)
                 });
@@ -177,10 +219,9 @@ pub fn run_variants(
                 );
                 continue;
             };
-            let raw = &outs[variant];
             let lights = match &mut tr.filter {
-                Some(f) => f.filter(raw),
-                None => raw.clone(),
+                Some(f) => f.filter(&raw),
+                None => raw,
             };
             tr.series.push(irradiance_at(&lights, &normals));
             if tr.prev.len() == lights.len() {
@@ -208,12 +249,13 @@ pub fn run_variants(
             let (mean, p99, max) = speed_stats(&mut tr.speeds);
             TemporalRow {
                 sequence: seq.name.clone(),
-                method: tr
-                    .variant
-                    .map(|v| variants[v].label.clone())
-                    .unwrap_or_else(|| SH_NAME.to_string()),
+                method: match tr.source {
+                    Source::Variant(v) => variants[v].label.clone(),
+                    Source::Rigid(_) => RIGID_NAME.to_string(),
+                    Source::Sh => SH_NAME.to_string(),
+                },
                 filter: if tr.filter.is_some() { "fir" } else { "none" },
-                lights: if tr.variant.is_some() { n } else { 0 },
+                lights: if tr.source == Source::Sh { 0 } else { n },
                 flicker: {
                     // Skip the warm-up; compare the filtered series with the delayed truth.
                     let warm = (fir.kernel().len() - 1).min(tr.series.len().saturating_sub(2));
@@ -229,6 +271,17 @@ pub fn run_variants(
                 delay_nominal,
                 delay_measured: best_lag(&tr.series, &truth_series),
             }
+        })
+        .collect()
+}
+
+/// `lights` turned by `turn` (directions only: a turned map's lights carry the same energy).
+fn turned(lights: &[Light], turn: DQuat) -> Vec<Light> {
+    lights
+        .iter()
+        .map(|l| Light {
+            to_light: (turn * l.dir()).normalize().as_vec3().to_array(),
+            ..*l
         })
         .collect()
 }
