@@ -474,7 +474,7 @@ fn accuracy_markdown(rows: &[AccuracyRow], domains: &[Domain]) -> String {
 /// The temporal table: one row per sequence and method, raw and filtered side by side.
 fn temporal_markdown(rows: &[TemporalRow]) -> String {
     let mut s = format!(
-        "N = {TEMPORAL_N}, whole sphere, {} normals. Flicker ratio: 1 is perfect. Speed: mean / 99th percentile / max of a light id's angle between consecutive frames. Delay: nominal group delay / lag that best aligns E_N with E (frames). `{}`: on a turned map, the default's first-frame lights turned exactly with it, what perfect tracking of that set would give (its floor; ALGORITHMS.md §11).\n\n| sequence | method | flicker raw | flicker FIR | error raw | speed raw (°/frame) | speed FIR (°/frame) | delay FIR |\n|---|---|---|---|---|---|---|---|\n",
+        "N = {TEMPORAL_N}, whole sphere, {} normals. Flicker ratio: 1 is perfect. Speed: mean / 99th percentile / max of a light id's angle between consecutive frames. Delay: nominal group delay / lag that best aligns E_N with E (frames). `{}`: on a turned map, the default's first-frame lights turned exactly with it at each frame's energy, what perfect tracking of that set would give (its floor; ALGORITHMS.md §11).\n\n| sequence | method | flicker raw | flicker FIR | error raw | speed raw (°/frame) | speed FIR (°/frame) | delay FIR |\n|---|---|---|---|---|---|---|---|\n",
         temporal::TEMPORAL_NORMALS,
         temporal::RIGID_NAME
     );

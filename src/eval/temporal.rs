@@ -17,7 +17,8 @@
 //! - the mean relative RMS error of E_N against the same frame's E.
 //!
 //! A map turned at a constant rate also gets the **rigid** anchor ([`RIGID_NAME`]): the default's
-//! first-frame lights turned exactly with the map, raw and through the same FIR. It is what perfect
+//! first-frame lights turned exactly with the map, at each frame's energy, raw and through the
+//! same FIR. It is what perfect
 //! tracking of that light set would give: point lights err between their directions, and a normal
 //! sweeping through that error sees E_N wobble where E does not, so its flicker is the floor of
 //! the set, not 1.
@@ -203,7 +204,18 @@ pub fn run_variants(
         for tr in &mut tracks {
             let raw = match tr.source {
                 Source::Variant(v) => outs[v].clone(),
-                Source::Rigid(_) => turned(&first_frame, turn),
+                Source::Rigid(v) => {
+                    // At the frame's own energy: the resampling of a turned map makes a sub-pixel
+                    // source's energy wobble from frame to frame (most under pitch), which the
+                    // truth and every energy-conserving method follow.
+                    let energy = |ls: &[Light]| ls.iter().map(Light::luminance).sum::<f64>();
+                    let scale = energy(&outs[v]) / energy(&first_frame);
+                    turned(
+                        &first_frame,
+                        turn,
+                        if scale.is_finite() { scale } else { 1.0 },
+                    )
+                }
                 Source::Sh => Vec::new(),
             };
             if tr.source == Source::Sh {
@@ -275,12 +287,13 @@ pub fn run_variants(
         .collect()
 }
 
-/// `lights` turned by `turn` (directions only: a turned map's lights carry the same energy).
-fn turned(lights: &[Light], turn: DQuat) -> Vec<Light> {
+/// `lights` turned by `turn`, their power scaled by `scale`.
+fn turned(lights: &[Light], turn: DQuat, scale: f64) -> Vec<Light> {
     lights
         .iter()
         .map(|l| Light {
             to_light: (turn * l.dir()).normalize().as_vec3().to_array(),
+            irradiance: l.irradiance.map(|c| (c as f64 * scale) as f32),
             ..*l
         })
         .collect()
