@@ -147,36 +147,7 @@ impl IrradianceReference {
     /// As [`from_domain_image`](Self::from_domain_image), binned into a `grid`×`grid` square and
     /// evaluated at `normals`: coarser and cheaper, for choosing between light sets.
     pub fn from_domain_image_at(image: &DomainImage, grid: usize, normals: Vec<DVec3>) -> Self {
-        let side = image.side;
-        let g = grid.clamp(1, side.max(1));
-        let mut bins = vec![(Vec3::ZERO, 0.0f32); g * g];
-        let sr = image.texel_solid_angle() as f32;
-        let column_bin: Vec<usize> = (0..side).map(|i| i * g / side).collect();
-        for j in 0..side {
-            let row = &mut bins[(j * g / side) * g..][..g];
-            let texels = j * side..(j + 1) * side;
-            for ((&y, m), &b) in image.luminance[texels.clone()]
-                .iter()
-                .zip(&image.moment[texels])
-                .zip(&column_bin)
-            {
-                if y > 0.0 {
-                    let b = &mut row[b];
-                    b.0 += Vec3::from_array(*m);
-                    b.1 += y;
-                }
-            }
-        }
-        for b in &mut bins {
-            b.0 *= sr;
-            b.1 *= sr;
-        }
-        let emitters: Vec<(Vec3, f32)> = bins
-            .into_iter()
-            .filter(|b| b.1 > 0.0)
-            .map(|(d, e)| (d.normalize_or(Vec3::Y), e))
-            .collect();
-        Self::with_normals(&emitters, normals)
+        Self::with_normals(&binned_emitters(image, grid), normals)
     }
 
     /// E_N at every reference normal from a light set.
@@ -335,6 +306,39 @@ pub struct DiffuseError {
     pub rel_rms: f64,
     /// max |E_N − E| over the normals, divided by the RMS of E.
     pub rel_max: f64,
+}
+
+/// The domain square binned into `grid`×`grid` emitters (luminance × sr), each at the summed first
+/// moment of its texels: a small source like the sun stays where it is.
+pub fn binned_emitters(image: &DomainImage, grid: usize) -> Vec<(Vec3, f32)> {
+    let side = image.side;
+    let g = grid.clamp(1, side.max(1));
+    let mut bins = vec![(Vec3::ZERO, 0.0f32); g * g];
+    let sr = image.texel_solid_angle() as f32;
+    let column_bin: Vec<usize> = (0..side).map(|i| i * g / side).collect();
+    for j in 0..side {
+        let row = &mut bins[(j * g / side) * g..][..g];
+        let texels = j * side..(j + 1) * side;
+        for ((&y, m), &b) in image.luminance[texels.clone()]
+            .iter()
+            .zip(&image.moment[texels])
+            .zip(&column_bin)
+        {
+            if y > 0.0 {
+                let b = &mut row[b];
+                b.0 += Vec3::from_array(*m);
+                b.1 += y;
+            }
+        }
+    }
+    for b in &mut bins {
+        b.0 *= sr;
+        b.1 *= sr;
+    }
+    bins.into_iter()
+        .filter(|b| b.1 > 0.0)
+        .map(|(d, e)| (d.normalize_or(Vec3::Y), e))
+        .collect()
 }
 
 #[cfg(test)]

@@ -20,6 +20,7 @@ pub mod kmeans;
 mod light;
 pub mod median_cut;
 pub mod sh;
+pub mod shadow;
 mod tilt;
 pub mod vmlps;
 
