@@ -18,10 +18,9 @@
 //!
 //! A map turned at a constant rate also gets the **rigid** anchor ([`RIGID_NAME`]): the default's
 //! first-frame lights turned exactly with the map, at each frame's energy, raw and through the
-//! same FIR. It is what perfect
-//! tracking of that light set would give: point lights err between their directions, and a normal
-//! sweeping through that error sees E_N wobble where E does not, so its flicker is the floor of
-//! the set, not 1.
+//! same FIR. It is what perfect tracking of that light set would give: point lights err between
+//! their directions, and a normal sweeping through that error sees E_N wobble where E does not,
+//! so its flicker is the floor of the set, not 1.
 //!
 //! Ground truth per frame: brute force over the frame's pixels binned 4 × 4 (each bin an emitter at
 //! its luminance-weighted mean direction, so the binning error is second order: below 10⁻⁴ relative
@@ -85,8 +84,8 @@ enum Source {
     Variant(usize),
     /// The SH reference line.
     Sh,
-    /// The variant of that index's first-frame lights, turned with the map.
-    Rigid(usize),
+    /// The default's first-frame lights, turned with the map.
+    Rigid,
 }
 
 /// State of one (source, filter) pair while a sequence runs.
@@ -155,13 +154,15 @@ pub fn run_variants(
         speeds: Vec::new(),
         worst: None,
     };
-    // The rigid anchor follows the default, where the sequence is a constant turn.
-    let rigid = seq
-        .turn_per_frame
-        .and_then(|_| variants.iter().position(|v| v.method == Method::Voronoi));
+    // The rigid anchor follows the default (its variant's index), where the sequence is a
+    // constant turn (the step).
+    let rigid = seq.turn_per_frame.and_then(|step| {
+        let v = variants.iter().position(|v| v.method == Method::Voronoi)?;
+        Some((v, step))
+    });
     let sources = (0..variants.len())
         .map(Source::Variant)
-        .chain(rigid.map(Source::Rigid));
+        .chain(rigid.map(|_| Source::Rigid));
     for source in sources {
         for filtered in [false, true] {
             if filtered && !with_fir {
@@ -176,6 +177,7 @@ pub fn run_variants(
     }
     let mut first_frame: Vec<Light> = Vec::new();
     let mut turn = DQuat::IDENTITY;
+    let mut rigid_lights: Vec<Light> = Vec::new();
     let mut resampler: Option<Resampler> = None;
     let mut truth_series = Vec::with_capacity(seq.frames);
 
@@ -194,29 +196,28 @@ pub fn run_variants(
                 v.extractor.extract(&map, &opts).lights
             })
             .collect();
-        if let Some(v) = rigid {
+        if let Some((v, step)) = rigid {
             if t == 0 {
                 first_frame = outs[v].clone();
             } else {
-                turn = (seq.turn_per_frame.unwrap_or(DQuat::IDENTITY) * turn).normalize();
+                turn = (step * turn).normalize();
             }
+            // At the frame's own energy: the resampling of a turned map makes a sub-pixel
+            // source's energy wobble from frame to frame (most under pitch), which the truth and
+            // every energy-conserving method follow.
+            let energy = |ls: &[Light]| ls.iter().map(Light::luminance).sum::<f64>();
+            let scale = energy(&outs[v]) / energy(&first_frame);
+            rigid_lights = turned(
+                &first_frame,
+                turn,
+                if scale.is_finite() { scale } else { 1.0 },
+            );
         }
         for tr in &mut tracks {
-            let raw = match tr.source {
-                Source::Variant(v) => outs[v].clone(),
-                Source::Rigid(v) => {
-                    // At the frame's own energy: the resampling of a turned map makes a sub-pixel
-                    // source's energy wobble from frame to frame (most under pitch), which the
-                    // truth and every energy-conserving method follow.
-                    let energy = |ls: &[Light]| ls.iter().map(Light::luminance).sum::<f64>();
-                    let scale = energy(&outs[v]) / energy(&first_frame);
-                    turned(
-                        &first_frame,
-                        turn,
-                        if scale.is_finite() { scale } else { 1.0 },
-                    )
-                }
-                Source::Sh => Vec::new(),
+            let raw: &[Light] = match tr.source {
+                Source::Variant(v) => &outs[v],
+                Source::Rigid => &rigid_lights,
+                Source::Sh => &[],
             };
             if tr.source == Source::Sh {
                 let r = resampler.get_or_insert_with(|| {
@@ -232,8 +233,8 @@ pub fn run_variants(
                 continue;
             };
             let lights = match &mut tr.filter {
-                Some(f) => f.filter(&raw),
-                None => raw,
+                Some(f) => f.filter(raw),
+                None => raw.to_vec(),
             };
             tr.series.push(irradiance_at(&lights, &normals));
             if tr.prev.len() == lights.len() {
@@ -263,7 +264,7 @@ pub fn run_variants(
                 sequence: seq.name.clone(),
                 method: match tr.source {
                     Source::Variant(v) => variants[v].label.clone(),
-                    Source::Rigid(_) => RIGID_NAME.to_string(),
+                    Source::Rigid => RIGID_NAME.to_string(),
                     Source::Sh => SH_NAME.to_string(),
                 },
                 filter: if tr.filter.is_some() { "fir" } else { "none" },

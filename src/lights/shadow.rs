@@ -129,19 +129,6 @@ pub struct ShadowReference {
 impl ShadowReference {
     /// On up to 8 threads (the evaluation's references are large).
     pub fn new(scene: &ShadowScene, emitters: &[(DVec3, f64)]) -> Self {
-        let threads = std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)
-            .min(8);
-        Self::on_threads(scene, emitters, threads)
-    }
-
-    /// On the calling thread alone (an extraction's own check).
-    pub fn serial(scene: &ShadowScene, emitters: &[(DVec3, f64)]) -> Self {
-        Self::on_threads(scene, emitters, 1)
-    }
-
-    fn on_threads(scene: &ShadowScene, emitters: &[(DVec3, f64)], threads: usize) -> Self {
         let open: f64 = emitters.iter().map(|e| e.1).sum();
         let per_probe = |p: &DVec3| {
             // Only directions inside an occluder's bounding cap can be blocked.
@@ -154,13 +141,11 @@ impl ShadowReference {
             }
             open - blocked
         };
-
-        let chunk = scene.probes.len().div_ceil(threads.max(1)).max(1);
-        if threads <= 1 {
-            return ShadowReference {
-                truth: scene.probes.iter().map(per_probe).collect(),
-            };
-        }
+        let threads = std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+            .min(8);
+        let chunk = scene.probes.len().div_ceil(threads).max(1);
         let truth = std::thread::scope(|s| {
             let handles: Vec<_> = scene
                 .probes
