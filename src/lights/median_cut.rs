@@ -11,6 +11,7 @@ use crate::mapping::Domain;
 use crate::sampling::DomainImage;
 use crate::sampling::resample::LatLongView;
 use glam::DVec3;
+use multiversion::multiversion;
 use std::f64::consts::PI;
 
 /// A rectangle of lat-long pixels, [x0, x1) × [y0, y1).
@@ -126,117 +127,124 @@ impl MedianCut {
     /// most energetic regions first.
     pub fn lights(&mut self, map: &EnvMap, image: &DomainImage, n: usize) -> Vec<Light> {
         let grid = self.grid.view(map, image);
-        let (w, h, rows, pixels, from_source) =
-            (grid.w, grid.h, grid.rows, grid.pixels, grid.from_source);
-        let row_sr: Vec<f64> = (0..h).map(|j| grid.row_sr(j)).collect();
-
-        // Summed-area table of luminance energy.
-        self.sat.clear();
-        self.sat.resize((w + 1) * (rows + 1), 0.0);
-        for j in 0..rows {
-            let mut row_acc = 0.0;
-            for i in 0..w {
-                row_acc += EnvMap::luminance(pixels[j * w + i]) as f64 * row_sr[j];
-                self.sat[(j + 1) * (w + 1) + i + 1] = self.sat[j * (w + 1) + i + 1] + row_acc;
-            }
-        }
-        let sat = &self.sat;
-        let energy = |x0: usize, x1: usize, y0: usize, y1: usize| {
-            sat[y1 * (w + 1) + x1] - sat[y0 * (w + 1) + x1] - sat[y1 * (w + 1) + x0]
-                + sat[y0 * (w + 1) + x0]
-        };
-
-        let mut regions = vec![Region {
-            x0: 0,
-            x1: w,
-            y0: 0,
-            y1: rows,
-            energy: energy(0, w, 0, rows),
-        }];
-        while regions.len() < n {
-            // One round: split every region (most energetic first) while there is budget.
-            let mut order: Vec<usize> = (0..regions.len()).collect();
-            order.sort_by(|&a, &b| regions[b].energy.total_cmp(&regions[a].energy));
-            let mut next = Vec::with_capacity(regions.len() * 2);
-            let mut budget = n - regions.len();
-            let mut split_any = false;
-            for idx in order {
-                let r = regions[idx];
-                if budget > 0
-                    && let Some((a, b)) = split(r, h, w, &energy)
-                {
-                    next.push(a);
-                    next.push(b);
-                    budget -= 1;
-                    split_any = true;
-                } else {
-                    next.push(r);
-                }
-            }
-            regions = next;
-            if !split_any {
-                break;
-            }
-        }
-
-        // Each region's light: RGB energy and the luminance-weighted mean direction.
-        let (columns, row_trig) = (grid.columns, grid.trig);
-        let mut lights: Vec<Light> = regions
-            .iter()
-            .enumerate()
-            .map(|(id, r)| {
-                let mut rgb = [0.0f64; 3];
-                let mut dir = DVec3::ZERO;
-                let mut sr = 0.0;
-                let mut lum = 0.0;
-                for j in r.y0..r.y1 {
-                    // d = (sin θ sin φ, cos θ, −sin θ cos φ), DESIGN.md's lat-long convention.
-                    let (st, ct, dw) = row_trig[j];
-                    let mut row_rgb = [0.0f64; 3];
-                    let (mut sx, mut sz, mut sy) = (0.0f64, 0.0f64, 0.0f64);
-                    for i in r.x0..r.x1 {
-                        let p = pixels[j * w + i];
-                        for c in 0..3 {
-                            row_rgb[c] += p[c] as f64;
-                        }
-                        let y = EnvMap::luminance(p) as f64;
-                        let (sp, cp) = columns[i];
-                        sx += y * sp;
-                        sz -= y * cp;
-                        sy += y;
-                    }
-                    for c in 0..3 {
-                        rgb[c] += row_rgb[c] * dw;
-                    }
-                    dir += DVec3::new(sx * st, sy * ct, sz * st) * dw;
-                    lum += sy * dw;
-                    sr += dw * (r.x1 - r.x0) as f64;
-                }
-                let centre = || {
-                    let (d, _) = Projection::LatLong
-                        .pixel((r.x0 + r.x1) / 2, (r.y0 + r.y1) / 2, w, h)
-                        .expect("lat-long");
-                    d
-                };
-                Light {
-                    id: id as u32,
-                    to_light: dir
-                        .try_normalize()
-                        .unwrap_or_else(centre)
-                        .as_vec3()
-                        .to_array(),
-                    irradiance: rgb.map(|v| v as f32),
-                    solid_angle: sr as f32,
-                    angular_radius: super::light::angular_radius(lum, dir.length()),
-                    shadowed: None,
-                }
-            })
-            .collect();
-        if !from_source {
+        let mut lights = cut(&grid, &mut self.sat, n);
+        if !grid.from_source {
             rescale_to_domain(&mut lights, image);
         }
         lights
     }
+}
+
+/// Median cut over `grid` (`sat` its summed-area table's buffer). Compiled twice, the second
+/// time for CPUs with AVX2 and FMA (chosen at run time), as the default method's passes are, so
+/// that the two are timed on the same instructions.
+#[multiversion(targets("x86_64+avx2+fma"))]
+fn cut(grid: &LatLongGrid, sat: &mut Vec<f64>, n: usize) -> Vec<Light> {
+    let (w, h, rows, pixels) = (grid.w, grid.h, grid.rows, grid.pixels);
+    let row_sr: Vec<f64> = (0..h).map(|j| grid.row_sr(j)).collect();
+
+    // Summed-area table of luminance energy.
+    sat.clear();
+    sat.resize((w + 1) * (rows + 1), 0.0);
+    for j in 0..rows {
+        let mut row_acc = 0.0;
+        for i in 0..w {
+            row_acc += EnvMap::luminance(pixels[j * w + i]) as f64 * row_sr[j];
+            sat[(j + 1) * (w + 1) + i + 1] = sat[j * (w + 1) + i + 1] + row_acc;
+        }
+    }
+    let sat = &*sat;
+    let energy = |x0: usize, x1: usize, y0: usize, y1: usize| {
+        sat[y1 * (w + 1) + x1] - sat[y0 * (w + 1) + x1] - sat[y1 * (w + 1) + x0]
+            + sat[y0 * (w + 1) + x0]
+    };
+
+    let mut regions = vec![Region {
+        x0: 0,
+        x1: w,
+        y0: 0,
+        y1: rows,
+        energy: energy(0, w, 0, rows),
+    }];
+    while regions.len() < n {
+        // One round: split every region (most energetic first) while there is budget.
+        let mut order: Vec<usize> = (0..regions.len()).collect();
+        order.sort_by(|&a, &b| regions[b].energy.total_cmp(&regions[a].energy));
+        let mut next = Vec::with_capacity(regions.len() * 2);
+        let mut budget = n - regions.len();
+        let mut split_any = false;
+        for idx in order {
+            let r = regions[idx];
+            if budget > 0
+                && let Some((a, b)) = split(r, h, w, &energy)
+            {
+                next.push(a);
+                next.push(b);
+                budget -= 1;
+                split_any = true;
+            } else {
+                next.push(r);
+            }
+        }
+        regions = next;
+        if !split_any {
+            break;
+        }
+    }
+
+    // Each region's light: RGB energy and the luminance-weighted mean direction.
+    let (columns, row_trig) = (grid.columns, grid.trig);
+    regions
+        .iter()
+        .enumerate()
+        .map(|(id, r)| {
+            let mut rgb = [0.0f64; 3];
+            let mut dir = DVec3::ZERO;
+            let mut sr = 0.0;
+            let mut lum = 0.0;
+            for j in r.y0..r.y1 {
+                // d = (sin θ sin φ, cos θ, −sin θ cos φ), DESIGN.md's lat-long convention.
+                let (st, ct, dw) = row_trig[j];
+                let mut row_rgb = [0.0f64; 3];
+                let (mut sx, mut sz, mut sy) = (0.0f64, 0.0f64, 0.0f64);
+                for i in r.x0..r.x1 {
+                    let p = pixels[j * w + i];
+                    for c in 0..3 {
+                        row_rgb[c] += p[c] as f64;
+                    }
+                    let y = EnvMap::luminance(p) as f64;
+                    let (sp, cp) = columns[i];
+                    sx += y * sp;
+                    sz -= y * cp;
+                    sy += y;
+                }
+                for c in 0..3 {
+                    rgb[c] += row_rgb[c] * dw;
+                }
+                dir += DVec3::new(sx * st, sy * ct, sz * st) * dw;
+                lum += sy * dw;
+                sr += dw * (r.x1 - r.x0) as f64;
+            }
+            let centre = || {
+                let (d, _) = Projection::LatLong
+                    .pixel((r.x0 + r.x1) / 2, (r.y0 + r.y1) / 2, w, h)
+                    .expect("lat-long");
+                d
+            };
+            Light {
+                id: id as u32,
+                to_light: dir
+                    .try_normalize()
+                    .unwrap_or_else(centre)
+                    .as_vec3()
+                    .to_array(),
+                irradiance: rgb.map(|v| v as f32),
+                solid_angle: sr as f32,
+                angular_radius: super::light::angular_radius(lum, dir.length()),
+                shadowed: None,
+            }
+        })
+        .collect()
 }
 
 /// Splits a region across its longer side (width measured at the region's central latitude) at the

@@ -36,6 +36,7 @@ use crate::sampling::pointset::voronoi_raster;
 use crate::sampling::{Distribution2D, DomainImage, N_MAX, Resampler, progressive_points};
 use error::IrradianceReference;
 use glam::{DVec3, Vec3};
+use multiversion::multiversion;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::time::Instant;
@@ -554,7 +555,8 @@ fn clean_luminance(y: f32) -> f32 {
 }
 
 /// `density` = clean(`luminance`)^(K/8), by products of the first three square roots; K is a
-/// constant so that the loop has no branch and vectorises.
+/// constant so that the loop has no branch and vectorises. Compiled twice, as [`assign_texels`].
+#[multiversion(targets("x86_64+avx2+fma"))]
 fn eighth_powers<const K: u32>(luminance: &[f32], density: &mut Vec<f32>) {
     density.resize(luminance.len(), 0.0);
     for (d, &y) in density.iter_mut().zip(luminance) {
@@ -1784,44 +1786,12 @@ impl Extractor {
         } else {
             self.owner.resize(side * side, 0);
         }
-        for cell in 0..grid.cell_count() {
-            let cands = grid.candidates(cell);
-            let start = grid.cell_starts[cell];
-            let end = grid.cell_starts[cell + 1];
-            // Eight texels at a time against every candidate: eight independent running maxima
-            // the compiler keeps in vector registers.
-            for block in (start..end).step_by(LANES) {
-                let (bx, by, bz) = (
-                    &grid.dx[block..block + LANES],
-                    &grid.dy[block..block + LANES],
-                    &grid.dz[block..block + LANES],
-                );
-                let mut best_dot = [f32::NEG_INFINITY; LANES];
-                let mut best = [0u16; LANES];
-                for &k in cands {
-                    let sd = self.seeds[k as usize];
-                    for l in 0..LANES {
-                        let dot = bx[l] * sd.x + by[l] * sd.y + bz[l] * sd.z;
-                        let better = dot > best_dot[l];
-                        best_dot[l] = if better { dot } else { best_dot[l] };
-                        best[l] = if better { k } else { best[l] };
-                    }
-                }
-                for l in 0..LANES {
-                    let t = grid.texels[block + l];
-                    if t == u32::MAX {
-                        continue; // padding
-                    }
-                    let t = t as usize;
-                    if half {
-                        self.half_owner[t] = best[l];
-                    } else {
-                        self.owner[t] = best[l];
-                    }
-                    self.accum[best[l] as usize].add_texel(image, t);
-                }
-            }
-        }
+        let owner = if half {
+            &mut self.half_owner
+        } else {
+            &mut self.owner
+        };
+        assign_texels(grid, &self.seeds, image, owner, &mut self.accum);
         if !half {
             // The cores, and each cell's rest by angle about its centroid: a second pass over
             // the texels, by the owners just recorded (ALGORITHMS.md §12). A texel counts at its
@@ -1834,15 +1804,13 @@ impl Extractor {
             );
             self.rest_bins.clear();
             self.rest_bins.resize(self.accum.len() * ANGLE_BINS, 0.0);
-            for (t, &k) in self.owner.iter().enumerate() {
-                let k = k as usize;
-                if !self.accum[k].add_core_texel(image, t)
-                    && let Some(far) = farness(image, t, self.centroids[k])
-                {
-                    let y = image.luminance[t];
-                    self.rest_bins[k * ANGLE_BINS + angle_bin((far / y as f64) as f32)] += y;
-                }
-            }
+            add_cores_and_rest(
+                image,
+                &self.owner,
+                &self.centroids,
+                &mut self.accum,
+                &mut self.rest_bins,
+            );
         }
         // Move each light to its cell's luminance-weighted centroid; a dark or empty cell keeps
         // its seed.
@@ -1916,6 +1884,75 @@ impl Extractor {
     }
 }
 
+/// Each texel of `grid` to its nearest seed among its cell's candidates: `owner[t]` and the
+/// seed's [`CellAccum`] sums. Compiled twice, the second time for CPUs with AVX2 and FMA (chosen
+/// at run time), whose eight-lane registers take a block of texels in one instruction.
+#[multiversion(targets("x86_64+avx2+fma"))]
+fn assign_texels(
+    grid: &CandidateGrid,
+    seeds: &[Vec3],
+    image: &DomainImage,
+    owner: &mut [u16],
+    accum: &mut [CellAccum],
+) {
+    for cell in 0..grid.cell_count() {
+        let cands = grid.candidates(cell);
+        let start = grid.cell_starts[cell];
+        let end = grid.cell_starts[cell + 1];
+        // Eight texels at a time against every candidate: eight independent running maxima
+        // the compiler keeps in vector registers.
+        for block in (start..end).step_by(LANES) {
+            let (bx, by, bz) = (
+                &grid.dx[block..block + LANES],
+                &grid.dy[block..block + LANES],
+                &grid.dz[block..block + LANES],
+            );
+            let mut best_dot = [f32::NEG_INFINITY; LANES];
+            let mut best = [0u16; LANES];
+            for &k in cands {
+                let sd = seeds[k as usize];
+                for l in 0..LANES {
+                    let dot = bx[l] * sd.x + by[l] * sd.y + bz[l] * sd.z;
+                    let better = dot > best_dot[l];
+                    best_dot[l] = if better { dot } else { best_dot[l] };
+                    best[l] = if better { k } else { best[l] };
+                }
+            }
+            for l in 0..LANES {
+                let t = grid.texels[block + l];
+                if t == u32::MAX {
+                    continue; // padding
+                }
+                let t = t as usize;
+                owner[t] = best[l];
+                accum[best[l] as usize].add_texel(image, t);
+            }
+        }
+    }
+}
+
+/// The second pass over the texels of a full-resolution assignment, by their `owner`s: each
+/// cell's core sums, and its rest binned by angle about its centroid (ALGORITHMS.md §12). Compiled
+/// twice, as [`assign_texels`].
+#[multiversion(targets("x86_64+avx2+fma"))]
+fn add_cores_and_rest(
+    image: &DomainImage,
+    owner: &[u16],
+    centroids: &[DVec3],
+    accum: &mut [CellAccum],
+    rest_bins: &mut [f32],
+) {
+    for (t, &k) in owner.iter().enumerate() {
+        let k = k as usize;
+        if !accum[k].add_core_texel(image, t)
+            && let Some(far) = farness(image, t, centroids[k])
+        {
+            let y = image.luminance[t];
+            rest_bins[k * ANGLE_BINS + angle_bin((far / y as f64) as f32)] += y;
+        }
+    }
+}
+
 /// Angle between two unit vectors, radians (accurate near 0, unlike acos of the dot product).
 fn angle(a: Vec3, b: Vec3) -> f32 {
     2.0 * ((a - b).length() * 0.5).clamp(0.0, 1.0).asin()
@@ -1984,7 +2021,8 @@ fn bounding_cap(dirs: &[Vec3]) -> (Vec3, f32) {
 
 /// Appends to `out` the lights of `from` that can be nearest to some direction within `radius`
 /// of `centre`: those within a_min + 2·radius of it, a_min the angle to the nearest of `from`
-/// (see [`CandidateGrid`]).
+/// (see [`CandidateGrid`]). Compiled twice, as [`assign_texels`].
+#[multiversion(targets("x86_64+avx2+fma"))]
 fn gather_candidates(
     seeds: &DirectionsSoa,
     from: &[u16],
