@@ -21,6 +21,8 @@ const STILL_RAD: f32 = 1e-5;
 /// Buffers reused between frames.
 #[derive(Default)]
 pub struct KMeans {
+    /// Which draw of the seeding's generator (0: the evaluation's floor).
+    draw: u64,
     centres: Vec<Vec3>,
     dirs: Vec<Vec3>,
     weights: Vec<f64>,
@@ -41,6 +43,14 @@ impl KMeans {
     /// k-means++ seeds for `n` centres over the lit texels of `image`: the first drawn by
     /// luminance, each next by luminance × squared chord distance to the nearest centre so far.
     /// With fewer lit texels than `n`, the remaining centres are spread at unlit texels.
+    /// Seeds from draw `draw` of the generator (default 0, the evaluation's floor): a k-means
+    /// fixed point depends on its seeds, and other draws land in other ones, some lower
+    /// (tests/floor.rs measures how much).
+    pub fn set_draw(&mut self, draw: u64) {
+        self.draw = draw;
+    }
+
+    /// k-means++ seeds for `n` centres among the lit texels of `image`, by the current draw.
     pub fn seed(&mut self, image: &DomainImage, n: usize) {
         self.dirs.clear();
         self.weights.clear();
@@ -55,7 +65,7 @@ impl KMeans {
             }
         }
         self.centres.clear();
-        let mut rng = 0x5EED_0000_u64 ^ n as u64;
+        let mut rng = 0x5EED_0000_u64 ^ n as u64 ^ (self.draw << 32);
         if !self.dirs.is_empty() {
             self.d2.clear();
             self.d2.resize(self.dirs.len(), f64::INFINITY);

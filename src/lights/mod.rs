@@ -788,6 +788,12 @@ impl Extractor {
         self.tilt = tilt;
     }
 
+    /// The draw of converged k-means' seeding generator (`Method::KMeans`; default 0, the
+    /// evaluation's floor), see [`kmeans::KMeans::set_draw`].
+    pub fn set_kmeans_draw(&mut self, draw: u64) {
+        self.kmeans.set_draw(draw);
+    }
+
     /// Whether a single map's default lights split a compact core (a sun, a lamp) in a wider
     /// cell off as a light of its own, the light cheapest to merge giving way (ALGORITHMS.md
     /// §12, "Core split"; default on). Streams split none.

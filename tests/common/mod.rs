@@ -19,6 +19,16 @@ pub const MAPS: [&str; 8] = [
     "apartment-f16.exr",
 ];
 
+/// Sorts `(ratio, case)` rows worst first and names the first five: "1.36 (case), …".
+pub fn worst_first(rows: &mut [(f64, String)]) -> String {
+    rows.sort_by(|a, b| b.0.total_cmp(&a.0));
+    rows.iter()
+        .take(5)
+        .map(|r| format!("{:.2} ({})", r.0, r.1))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 pub fn data_path(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data")
