@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{MAPS, assert_valid, lightset_validator, load};
+use common::{MAPS, assert_valid, every_map, lightset_validator, load};
 use glam::DVec3;
 use vemlight::envmap::{EnvMap, Lens, Projection};
 use vemlight::lights::error::{IrradianceReference, relative_error};
@@ -546,15 +546,6 @@ fn energy_is_conserved_for_fisheye_input() {
             }
         }
     }
-}
-
-/// The maps of tests/data and the synthetic hard skies (a real-size sun, low and high, clear and
-/// hazy; a room with a window and a lamp), at half resolution for the skies to keep this quick.
-fn every_map() -> Vec<(String, vemlight::envmap::EnvMap)> {
-    let mut maps: Vec<(String, vemlight::envmap::EnvMap)> =
-        MAPS.iter().map(|n| (n.to_string(), load(n))).collect();
-    maps.extend(vemlight::eval::scenes::hard_skies(1024));
-    maps
 }
 
 /// Every light carries energy, and N lights asked for are N distinct lights, on every

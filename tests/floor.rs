@@ -6,8 +6,7 @@
 
 mod common;
 
-use common::{MAPS, load, worst_first};
-use vemlight::eval::scenes::hard_skies;
+use common::{every_map, worst_first};
 use vemlight::lights::error::IrradianceReference;
 use vemlight::lights::{ExtractOptions, Extractor, Method};
 use vemlight::mapping::Domain;
@@ -20,9 +19,7 @@ const DRAWS: u64 = 5;
 #[test]
 #[ignore]
 fn floor_table() {
-    let mut maps: Vec<(String, vemlight::envmap::EnvMap)> =
-        MAPS.iter().map(|m| (m.to_string(), load(m))).collect();
-    maps.extend(hard_skies(1024));
+    let maps = every_map();
     let mut rows = Vec::new();
     let mut spread: f64 = 1.0;
     for (name, map) in &maps {

@@ -5,12 +5,10 @@
 
 mod common;
 
-use common::{MAPS, load};
+use common::{MAPS, every_map, load};
 use glam::DQuat;
 use vemlight::envmap::EnvMap;
-use vemlight::eval::scenes::{
-    LatLongDirs, angle_deg, dir_from_elev_azim, hard_skies, room, with_lamp,
-};
+use vemlight::eval::scenes::{LatLongDirs, angle_deg, dir_from_elev_azim, room, with_lamp};
 use vemlight::eval::temporal::{Sequence, TemporalRow, Variant, run_variants};
 use vemlight::lights::{ExtractOptions, Extractor, Light, Method, VideoTracking};
 use vemlight::mapping::Domain;
@@ -264,14 +262,6 @@ fn table_variants() -> Vec<Variant> {
     .collect()
 }
 
-/// Every map of `vemlight eval`: tests/data and the synthetic hard skies.
-fn eval_maps() -> Vec<(String, EnvMap)> {
-    let mut maps: Vec<(String, EnvMap)> = MAPS.iter().map(|m| (m.to_string(), load(m))).collect();
-    maps.sort_by(|a, b| a.0.cmp(&b.0));
-    maps.extend(hard_skies(1024));
-    maps
-}
-
 /// `vemlight eval`'s 26 rotation sequences and switch-on (96 frames, N = 64) for the default
 /// method, before and after the step limit, plus three fast turns (5°/frame, 48 frames): flicker
 /// raw, error raw, speed raw (mean / p99 / max, and where the max was). `JUMP_SEQ` keeps the
@@ -407,4 +397,11 @@ fn static_table() {
             );
         }
     }
+}
+
+/// Every map of `vemlight eval`, tests/data's by name as the evaluation's tables list them.
+fn eval_maps() -> Vec<(String, EnvMap)> {
+    let mut maps = every_map();
+    maps[..MAPS.len()].sort_by(|a, b| a.0.cmp(&b.0));
+    maps
 }

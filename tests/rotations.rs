@@ -6,9 +6,9 @@
 
 mod common;
 
-use common::{MAPS, load, worst_first};
+use common::{every_map, worst_first};
 use glam::DQuat;
-use vemlight::eval::scenes::{LatLongDirs, hard_skies};
+use vemlight::eval::scenes::LatLongDirs;
 use vemlight::lights::error::IrradianceReference;
 use vemlight::lights::{ExtractOptions, Extractor, Method};
 use vemlight::mapping::Domain;
@@ -19,9 +19,7 @@ use vemlight::mapping::Domain;
 #[test]
 #[ignore]
 fn rotation_table() {
-    let mut maps: Vec<(String, vemlight::envmap::EnvMap)> =
-        MAPS.iter().map(|m| (m.to_string(), load(m))).collect();
-    maps.extend(hard_skies(1024));
+    let maps = every_map();
     let turns = [
         ("yaw 90°", DQuat::from_rotation_y(90f64.to_radians())),
         ("yaw 200°", DQuat::from_rotation_y(200f64.to_radians())),

@@ -40,9 +40,6 @@ fn next_unit(state: &mut u64) -> f64 {
 }
 
 impl KMeans {
-    /// k-means++ seeds for `n` centres over the lit texels of `image`: the first drawn by
-    /// luminance, each next by luminance × squared chord distance to the nearest centre so far.
-    /// With fewer lit texels than `n`, the remaining centres are spread at unlit texels.
     /// Seeds from draw `draw` of the generator (default 0, the evaluation's floor): a k-means
     /// fixed point depends on its seeds, and other draws land in other ones, some lower
     /// (tests/floor.rs measures how much).
@@ -50,7 +47,10 @@ impl KMeans {
         self.draw = draw;
     }
 
-    /// k-means++ seeds for `n` centres among the lit texels of `image`, by the current draw.
+    /// k-means++ seeds for `n` centres over the lit texels of `image`, from the current draw of
+    /// the generator: the first drawn by luminance, each next by luminance × squared chord
+    /// distance to the nearest centre so far. With fewer lit texels than `n`, the remaining
+    /// centres are spread at unlit texels.
     pub fn seed(&mut self, image: &DomainImage, n: usize) {
         self.dirs.clear();
         self.weights.clear();

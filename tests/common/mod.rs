@@ -19,6 +19,14 @@ pub const MAPS: [&str; 8] = [
     "apartment-f16.exr",
 ];
 
+/// Every map of `vemlight eval`: tests/data in [`MAPS`] order, then the synthetic hard skies
+/// (a real-size sun, low and high, clear and hazy; a room with a window and a lamp) at 1024 × 512.
+pub fn every_map() -> Vec<(String, EnvMap)> {
+    let mut maps: Vec<(String, EnvMap)> = MAPS.iter().map(|m| (m.to_string(), load(m))).collect();
+    maps.extend(vemlight::eval::scenes::hard_skies(1024));
+    maps
+}
+
 /// Sorts `(ratio, case)` rows worst first and names the first five: "1.36 (case), …".
 pub fn worst_first(rows: &mut [(f64, String)]) -> String {
     rows.sort_by(|a, b| b.0.total_cmp(&a.0));
