@@ -20,7 +20,8 @@ fn more_lights_converge_to_the_1024_light_render() {
     let map = "tests/data/city.exr";
     let scene = Scene::showcase(&Mesh::builtin_bunny());
     let camera = Camera::framing(&scene.bounds, 20.0);
-    let gpu = Gpu::new(Gpu::backends(None)).expect("a graphics adapter (CI installs lavapipe)");
+    let gpu = Gpu::new(Gpu::backends(None), &vemlight::render::TARGET_FORMATS)
+        .expect("a graphics adapter (CI installs lavapipe)");
     let reference_set = lights_from_map(map.as_ref(), 1024).unwrap();
     let options = Options {
         // Every light its own shadow map, all of them drawn: 1 024 layers of 256².

@@ -69,3 +69,38 @@ fn no_adapter_through_wgpu_backend_is_a_clear_error() {
     check(out);
     let _ = std::fs::remove_file(json);
 }
+
+/// An adapter that cannot render to one of the renderer's formats (Mesa's GL driver has no
+/// 32-bit float colour targets) is a clear error, not a wgpu validation panic; an adapter that
+/// can draws the frame.
+#[test]
+fn an_adapter_without_the_renderers_formats_is_a_clear_error() {
+    let json = lightset_file();
+    let dir = std::env::temp_dir().join(format!("vemlight-gl-out-{}", std::process::id()));
+    let out = Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(["view", "--headless", "--frames", "1", "--backend", "gl"])
+        .arg("--out")
+        .arg(&dir)
+        .arg(&json)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    println!("exit {:?}, stderr:\n{stderr}", out.status.code());
+    assert!(!stderr.contains("panicked"), "no panic: {stderr}");
+    if out.status.success() {
+        let frames = std::fs::read_dir(&dir).map_or(0, |d| d.count());
+        assert!(frames >= 1, "a GL adapter that can draw wrote no frame");
+    } else {
+        assert_eq!(out.status.code(), Some(1), "{stderr}");
+        assert!(
+            stderr.contains("cannot render to") || stderr.contains("no graphics adapter found"),
+            "{stderr}"
+        );
+        assert!(
+            stderr.contains("mesa-vulkan-drivers"),
+            "says what to install: {stderr}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+    let _ = std::fs::remove_file(json);
+}

@@ -55,7 +55,8 @@ fn light(id: u32, to_light: Vec3, e: f32) -> Light {
 /// Renders the lights and returns the HDR radiance (red channel), the pixel of each world point
 /// and the frame's stats.
 fn render(lights: &[Light], points: &[Vec3]) -> (Vec<[f32; 4]>, Vec<(usize, usize)>, FrameStats) {
-    let gpu = Gpu::new(Gpu::backends(None)).expect("a graphics adapter (CI installs lavapipe)");
+    let gpu = Gpu::new(Gpu::backends(None), &vemlight::render::TARGET_FORMATS)
+        .expect("a graphics adapter (CI installs lavapipe)");
     let options = Options {
         exposure: Some(1.0),
         overlay: false,

@@ -13,7 +13,8 @@ fn consecutive_frames_of_a_steady_scene_are_identical() {
     let set = lights_from_map("tests/data/sunrise.exr".as_ref(), 72).unwrap();
     let scene = Scene::showcase(&Mesh::builtin_bunny());
     let camera = Camera::framing(&scene.bounds, 20.0);
-    let gpu = Gpu::new(Gpu::backends(None)).expect("a graphics adapter (CI installs lavapipe)");
+    let gpu = Gpu::new(Gpu::backends(None), &vemlight::render::TARGET_FORMATS)
+        .expect("a graphics adapter (CI installs lavapipe)");
     let mut frames = Vec::new();
     for options in [Options::naive(), Options::optimised()] {
         // No overlay: its status line counts the shadow maps drawn, which the first frame does.

@@ -15,6 +15,12 @@ pub enum GpuError {
     NoAdapter { backends: Backends },
     /// An adapter was found but refused the device (limits or features).
     Device(String),
+    /// The adapter cannot render to a texture format the renderer draws into (some GL drivers
+    /// cannot render to 32-bit float colour targets).
+    Format {
+        adapter: String,
+        format: wgpu::TextureFormat,
+    },
 }
 
 impl fmt::Display for GpuError {
@@ -28,6 +34,13 @@ impl fmt::Display for GpuError {
                 backend_names(*backends)
             ),
             GpuError::Device(e) => write!(f, "the graphics adapter refused the device: {e}"),
+            GpuError::Format { adapter, format } => write!(
+                f,
+                "the graphics adapter {adapter} cannot render to {format:?} textures, which the \
+                 renderer draws into. Use a Vulkan driver (`--backend vulkan`; on Debian/Ubuntu \
+                 `apt-get install mesa-vulkan-drivers libvulkan1` gives the software driver \
+                 lavapipe)"
+            ),
         }
     }
 }
@@ -86,6 +99,39 @@ pub struct Gpu {
     pub max_layers: u32,
 }
 
+/// The device features the render targets need: none where WebGPU's guarantees cover them, else
+/// the adapter's own format capabilities; or, where the adapter cannot render to one of them, why.
+fn render_target_features(
+    adapter: &wgpu::Adapter,
+    targets: &[wgpu::TextureFormat],
+) -> Result<wgpu::Features, GpuError> {
+    let renders = |features: wgpu::TextureFormatFeatures| {
+        features
+            .allowed_usages
+            .contains(wgpu::TextureUsages::RENDER_ATTACHMENT)
+    };
+    let offered = adapter.features();
+    let mut needed = wgpu::Features::empty();
+    for &format in targets {
+        // The adapter's own capabilities are what its device validates against: a GL driver
+        // may lack a format that WebGPU guarantees (32-bit float colour without
+        // EXT_color_buffer_float).
+        let guaranteed = renders(format.guaranteed_format_features(offered));
+        let specific = offered.contains(wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES);
+        if !renders(adapter.get_texture_format_features(format)) || !(guaranteed || specific) {
+            let info = adapter.get_info();
+            return Err(GpuError::Format {
+                adapter: format!("{} on {:?}", info.name, info.backend),
+                format,
+            });
+        }
+        if !guaranteed {
+            needed |= wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES;
+        }
+    }
+    Ok(needed)
+}
+
 impl Gpu {
     /// The backends to try: `--backend` if given, else `WGPU_BACKEND`, else Vulkan then GL.
     pub fn backends(choice: Option<Backends>) -> Backends {
@@ -94,20 +140,23 @@ impl Gpu {
             .unwrap_or(Backends::VULKAN | Backends::GL | Backends::METAL | Backends::DX12)
     }
 
-    /// A headless device.
-    pub fn new(backends: Backends) -> Result<Gpu, GpuError> {
+    /// A headless device that can render to every format of `targets` (the renderer's are
+    /// [`crate::render::TARGET_FORMATS`]).
+    pub fn new(backends: Backends, targets: &[wgpu::TextureFormat]) -> Result<Gpu, GpuError> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
             backends,
             ..wgpu::InstanceDescriptor::new_without_display_handle()
         });
-        Self::with_instance(instance, backends, None)
+        Self::with_instance(instance, backends, None, targets)
     }
 
-    /// A device for an instance, compatible with `surface` when one is given.
+    /// A device for an instance, compatible with `surface` when one is given, that can render
+    /// to every format of `targets`.
     pub fn with_instance(
         instance: wgpu::Instance,
         backends: Backends,
         surface: Option<&wgpu::Surface<'_>>,
+        targets: &[wgpu::TextureFormat],
     ) -> Result<Gpu, GpuError> {
         let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
@@ -116,12 +165,13 @@ impl Gpu {
             apply_limit_buckets: false,
         }))
         .map_err(|_| GpuError::NoAdapter { backends })?;
+        let required_features = render_target_features(&adapter, targets)?;
         // Ask for everything the adapter offers: the defaults allow only 256 array layers, and the
         // shadow array wants one per light (up to 1 024 in the convergence test).
         let available = adapter.limits();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("vemlight"),
-            required_features: wgpu::Features::empty(),
+            required_features,
             required_limits: available.clone(),
             ..Default::default()
         }))

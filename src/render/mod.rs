@@ -27,4 +27,4 @@ pub mod shadow;
 pub mod tonemap;
 pub mod view;
 
-pub use renderer::{FrameStats, OUTPUT_FORMAT, Options, Renderer, auto_exposure};
+pub use renderer::{FrameStats, OUTPUT_FORMAT, Options, Renderer, TARGET_FORMATS, auto_exposure};

@@ -24,6 +24,16 @@ use crate::lights::Light;
 
 /// Format of headless frames (PNG output, tests).
 pub const OUTPUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
+/// Every format the renderer draws into, which [`Gpu::new`] checks the adapter can render to.
+pub const TARGET_FORMATS: [wgpu::TextureFormat; 7] = [
+    shading::GBUFFER_FORMATS[0],
+    shading::GBUFFER_FORMATS[1],
+    shading::GBUFFER_FORMATS[2],
+    shading::HDR_FORMAT,
+    shading::DEPTH_FORMAT,
+    super::shadow::SHADOW_FORMAT,
+    OUTPUT_FORMAT,
+];
 
 /// The renderer's switches; each cost saver of ALGORITHMS.md §6 can be turned off on its own.
 #[derive(Clone, Copy, Debug, PartialEq)]

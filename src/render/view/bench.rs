@@ -10,7 +10,7 @@ use super::args::{ViewArgs, camera_at};
 use crate::lights::Light;
 use crate::render::gpu::Gpu;
 use crate::render::overlay::Status;
-use crate::render::renderer::{FrameStats, OUTPUT_FORMAT, Options, Renderer};
+use crate::render::renderer::{FrameStats, OUTPUT_FORMAT, Options, Renderer, TARGET_FORMATS};
 use crate::render::shading::MAX_LIGHTS;
 use anyhow::bail;
 use std::time::{Duration, Instant};
@@ -58,7 +58,7 @@ pub(super) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let mut feed = args.feed()?;
     let set = feed.wait_first(Duration::from_secs(10))?;
     let scene = args.scene()?;
-    let gpu = Gpu::new(Gpu::backends(args.backend))?;
+    let gpu = Gpu::new(Gpu::backends(args.backend), &TARGET_FORMATS)?;
     let frames = args.frames.max(3);
     const WARMUP: u32 = 3;
     println!("vemlight view --bench");

@@ -7,7 +7,7 @@ use super::adaptive::LightState;
 use super::args::{ViewArgs, camera_at};
 use crate::render::gpu::Gpu;
 use crate::render::overlay::Status;
-use crate::render::renderer::{OUTPUT_FORMAT, Renderer};
+use crate::render::renderer::{OUTPUT_FORMAT, Renderer, TARGET_FORMATS};
 use anyhow::Context;
 use std::time::{Duration, Instant};
 
@@ -16,7 +16,7 @@ pub(super) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let size = args.size.unwrap_or((320, 240));
     let mut feed = args.feed()?;
     let scene = args.scene()?;
-    let gpu = Gpu::new(Gpu::backends(args.backend))?;
+    let gpu = Gpu::new(Gpu::backends(args.backend), &TARGET_FORMATS)?;
     eprintln!("vemlight view: {}", gpu.describe());
     let mut renderer = Renderer::new(&gpu, &scene, size, OUTPUT_FORMAT, args.options(size));
     let mut lights = LightState::new(args.target_fps, args.lights);

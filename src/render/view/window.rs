@@ -8,7 +8,7 @@ use super::args::{ViewArgs, camera_at};
 use super::source::LightFeed;
 use crate::render::gpu::Gpu;
 use crate::render::overlay::Status;
-use crate::render::renderer::{Options, Renderer};
+use crate::render::renderer::{Options, Renderer, TARGET_FORMATS};
 use crate::render::scene::Scene;
 use std::sync::Arc;
 use std::time::Instant;
@@ -90,7 +90,7 @@ impl App {
             ))
         });
         let surface = instance.create_surface(window.clone())?;
-        let gpu = Gpu::with_instance(instance, backends, Some(&surface))?;
+        let gpu = Gpu::with_instance(instance, backends, Some(&surface), &TARGET_FORMATS)?;
         eprintln!("vemlight view: {}", gpu.describe());
         let size = window.inner_size();
         let mut config = surface
