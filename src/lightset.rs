@@ -192,12 +192,22 @@ impl LightRequest {
                 self.lights
             ));
         }
-        if let Some(e) = self.max_error
-            && !(e.is_finite() && e > 0.0)
-        {
-            return Err(format!("max_error must be a positive number, got {e}"));
+        if let Some(e) = self.max_error {
+            check_max_error(e)?;
         }
         Ok(())
+    }
+}
+
+/// A `max_error` is a relative RMS error in (0, 1]: the same rule for the CLI, uploads and
+/// streams; errors are user-facing.
+pub fn check_max_error(e: f64) -> Result<(), String> {
+    if e.is_finite() && e > 0.0 && e <= 1.0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "max_error must be a relative error in (0, 1] (0.02 for 2 %), got {e}"
+        ))
     }
 }
 

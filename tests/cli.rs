@@ -322,7 +322,12 @@ fn bad_arguments_are_refused() {
         &vemlight(&["lights", f, "--lights", "5000"]),
         "between 1 and 1024",
     );
-    assert_fails_with(&vemlight(&["lights", f, "--max-error=-1"]), "positive");
+    for e in ["-1", "0", "2"] {
+        assert_fails_with(
+            &vemlight(&["lights", f, &format!("--max-error={e}")]),
+            "relative error in (0, 1]",
+        );
+    }
     assert_fails_with(
         &vemlight(&["lights", f, "--method", "magic"]),
         "invalid value 'magic' for '--method <METHOD>'",

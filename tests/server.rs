@@ -532,6 +532,37 @@ async fn problem(resp: reqwest::Response, status: u16) -> serde_json::Value {
     p
 }
 
+/// A wrong path or a wrong method is a problem document too, and a 405 says what the path takes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn wrong_paths_and_methods_get_problem_documents() {
+    let s = start(MemorySource::new(vec![small_sky()], 20.0), None, 1 << 20).await;
+    let c = reqwest::Client::new();
+    let base = format!("http://{}", s.addr);
+    let p = problem(c.get(format!("{base}/nope")).send().await.unwrap(), 404).await;
+    assert!(p["detail"].as_str().unwrap().contains("/nope"), "{p}");
+    for (method, path, allow) in [
+        (reqwest::Method::DELETE, "/v1/lights", "POST"),
+        (reqwest::Method::GET, "/v1/lights", "POST"),
+        (reqwest::Method::POST, "/healthz", "GET"),
+    ] {
+        let r = c
+            .request(method.clone(), format!("{base}{path}"))
+            .send()
+            .await
+            .unwrap();
+        let allowed = r
+            .headers()
+            .get("allow")
+            .map(|v| v.to_str().unwrap().to_string());
+        let p = problem(r, 405).await;
+        assert!(
+            allowed.as_deref().is_some_and(|a| a.contains(allow)),
+            "{method} {path}: Allow {allowed:?}"
+        );
+        assert!(p["detail"].as_str().unwrap().contains(path), "{p}");
+    }
+}
+
 /// Bad uploads get 400/413/415/422 with a problem document, and the daemon keeps serving.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
@@ -546,7 +577,14 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
     let night = std::fs::read(data_path("overcast-plaza.exr")).unwrap();
 
     // 400: bad parameters (checked before the body).
-    for query in ["lights=0", "method=magic", "domain=left", "projection=cube"] {
+    for query in [
+        "lights=0",
+        "method=magic",
+        "domain=left",
+        "projection=cube",
+        "max_error=2",
+        "max_error=0",
+    ] {
         let r = c
             .post(format!("{url}?{query}"))
             .body(night.clone())
@@ -645,7 +683,7 @@ async fn bad_uploads_get_problem_documents_and_the_daemon_keeps_serving() {
         .unwrap();
     assert_eq!(h.status(), 200);
     let m = metrics_text(&c, &format!("http://{}", s.addr)).await;
-    assert!(m.contains("vemlight_http_lights_errors_total 14"), "{m}");
+    assert!(m.contains("vemlight_http_lights_errors_total 16"), "{m}");
     assert!(m.contains("\nvemlight_source_up 1\n"), "{m}");
 }
 

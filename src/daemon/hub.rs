@@ -110,13 +110,9 @@ impl StreamKey {
         }
         let max_error_ppm = match max_error {
             None => None,
-            Some(e) if e.is_finite() && e > 0.0 && e <= 1.0 => {
-                Some(((e * 1e6).round() as u32).max(1))
-            }
             Some(e) => {
-                return Err(format!(
-                    "max_error must be a relative error in (0, 1] (0.02 for 2 %), got {e}"
-                ));
+                crate::lightset::check_max_error(e)?;
+                Some(((e * 1e6).round() as u32).max(1))
             }
         };
         if let Some(k) = shadowed

@@ -12,6 +12,12 @@ pub enum ApiError {
     /// 400: a parameter is missing, malformed or out of range.
     #[error("{0}")]
     BadRequest(String),
+    /// 404: no such path (the endpoints are listed in docs/API.md).
+    #[error("{0}")]
+    NotFound(String),
+    /// 405: the path exists, the method does not (the `Allow` header lists those that do).
+    #[error("{0}")]
+    MethodNotAllowed(String),
     /// 401: the bearer token is missing or wrong.
     #[error("a valid 'Authorization: Bearer' token is required")]
     Unauthorized,
@@ -72,6 +78,8 @@ impl ApiError {
         match self {
             ApiError::BadRequest(_) => StatusCode::BAD_REQUEST,
             ApiError::Unauthorized => StatusCode::UNAUTHORIZED,
+            ApiError::NotFound(_) => StatusCode::NOT_FOUND,
+            ApiError::MethodNotAllowed(_) => StatusCode::METHOD_NOT_ALLOWED,
             ApiError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
             ApiError::UnsupportedMedia(_) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             ApiError::Unprocessable(_) => StatusCode::UNPROCESSABLE_ENTITY,

@@ -48,6 +48,9 @@ pub fn app(state: AppState) -> Router {
         .route("/vendor/{file}", get(handlers::vendor))
         .route("/healthz", get(handlers::healthz))
         .merge(protected)
+        // Every error is a problem document (docs/API.md), a wrong path or method too.
+        .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
         // Uploads are limited by `Uploads::max_body`, checked in the handler.
         .layer(axum::extract::DefaultBodyLimit::disable())
         .with_state(state);
@@ -57,6 +60,22 @@ pub fn app(state: AppState) -> Router {
         Some(cors) => router.layer(cors),
         None => router,
     }
+}
+
+/// Any path that is not an endpoint.
+async fn not_found(uri: axum::http::Uri) -> ApiError {
+    ApiError::NotFound(format!(
+        "no endpoint at {} (docs/API.md lists them)",
+        uri.path()
+    ))
+}
+
+/// An endpoint asked for with a method it does not take.
+async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) -> ApiError {
+    ApiError::MethodNotAllowed(format!(
+        "{} does not take {method} (the Allow header lists what it takes)",
+        uri.path()
+    ))
 }
 
 /// Serves [`app`] on `listener` over HTTP/1.1 (with WebSocket upgrades) until `shutdown`
