@@ -322,6 +322,23 @@ fn bad_arguments_are_refused() {
         &vemlight(&["lights", f, "--lights", "5000"]),
         "between 1 and 1024",
     );
+    // Values the help rules out are refused by name, not accepted and ignored.
+    for (args, says) in [
+        (&["bench", "--rounds", "0"][..], "--rounds"),
+        (&["bench", "--lights", "0"][..], "--lights"),
+        (&["view", f, "--pcf", "2"][..], "1 or 4"),
+        (&["view", f, "--exposure", "NaN"][..], "finite"),
+        (&["view", f, "--cluster-deg=-1"][..], "at least 0"),
+        (&["view", f, "--target-fps", "0"][..], "greater than 0"),
+        (&["view", f, "--shadow-size", "0"][..], "--shadow-size"),
+        (&["view", f, "--frames", "0"][..], "--frames"),
+        (
+            &["view", f, "--bench", "--bench-paths", "bogus"][..],
+            "naive, steady, turning",
+        ),
+    ] {
+        assert_fails_with(&vemlight(args), says);
+    }
     for e in ["-1", "0", "2"] {
         assert_fails_with(
             &vemlight(&["lights", f, &format!("--max-error={e}")]),

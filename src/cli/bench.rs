@@ -10,13 +10,15 @@ pub struct BenchArgs {
     /// A lat-long map; the fisheye case sees it through a 180° equidistant lens.
     #[arg(long, default_value = "tests/data/sunrise.exr")]
     pub map: PathBuf,
-    #[arg(long, default_value_t = 256)]
-    pub lights: usize,
+    /// Lights per frame (1–1024).
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u16).range(1..=1024))]
+    pub lights: u16,
     /// Interleaved rounds; each times every case `--per-round` times.
-    #[arg(long, default_value_t = 15)]
-    pub rounds: usize,
-    #[arg(long, default_value_t = 20)]
-    pub per_round: usize,
+    #[arg(long, default_value_t = 15, value_parser = clap::value_parser!(u16).range(1..))]
+    pub rounds: u16,
+    /// Timed runs of each case in a round.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u16).range(1..))]
+    pub per_round: u16,
 }
 
 /// `vemlight bench`.
@@ -34,7 +36,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         map.height,
         decode * 1e3
     );
-    let cases = speed::standard_cases(&map, args.lights);
+    let cases = speed::standard_cases(&map, usize::from(args.lights));
     println!(
         "{:<48} {:>10} {:>12} {:>9} {:>13} {:>22}",
         "case (single thread, decode excluded)",
@@ -44,7 +46,11 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         "x median cut",
         "x median cut, bare †"
     );
-    for t in speed::run(&cases, args.rounds, args.per_round) {
+    for t in speed::run(
+        &cases,
+        usize::from(args.rounds),
+        usize::from(args.per_round),
+    ) {
         let ratio = |r: Option<f64>| r.map(|r| format!("{r:.2}")).unwrap_or_default();
         println!(
             "{:<48} {:>10.3} {:>12.3} {:>9.0} {:>13} {:>22}",

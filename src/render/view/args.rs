@@ -36,7 +36,7 @@ pub struct ViewArgs {
     #[arg(long)]
     pub headless: bool,
     /// Frames to render headless (and per path with --bench).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub frames: u32,
     /// Directory for the PNGs (frame_0000.png, …).
     #[arg(long, default_value = "frames")]
@@ -51,10 +51,10 @@ pub struct ViewArgs {
     #[arg(long, short = 'n', default_value_t = 72)]
     pub lights: usize,
     /// Camera azimuth in degrees (0 looks from +Z toward −Z).
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = 20.0, value_parser = finite, allow_negative_numbers = true)]
     pub azimuth: f32,
     /// Orbit the camera at this many degrees per second (0 = fixed).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = finite, allow_negative_numbers = true)]
     pub orbit: f32,
     /// Every cost saver off (each light its own map, every map every frame, full BRDF everywhere).
     #[arg(long)]
@@ -66,16 +66,16 @@ pub struct ViewArgs {
     #[arg(long)]
     pub no_glossy_refine: bool,
     /// Clustering radius δ in degrees: lights closer share a shadow map (0 = off).
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = non_negative)]
     pub cluster_deg: f32,
     /// Reuse a shadow map while its light moved less than ε degrees.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, value_parser = non_negative)]
     pub reuse_deg: f32,
     /// Redraw every shadow map every frame.
     #[arg(long)]
     pub no_reuse: bool,
     /// Adapt the light count (a prefix of the progressive set) to reach this frame rate.
-    #[arg(long)]
+    #[arg(long, value_parser = positive)]
     pub target_fps: Option<f32>,
     /// Shadow budget: only K lights get shadow maps (the K most worth one, marked as the
     /// daemon's `shadowed=K` marks them), the rest are drawn unoccluded. A stream is asked for
@@ -85,13 +85,13 @@ pub struct ViewArgs {
     pub shadowed: Option<usize>,
     /// Side of each shadow map, texels (default: the largest power of two not above the frame's
     /// longer side, 256–2048: 256 at 320×240, 512 at 960×540).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(16..=8192))]
     pub shadow_size: Option<u32>,
     /// PCF taps per shadow lookup: 1 (bilinear 2×2) or 4 (3×3 tent); 0 turns shadows off.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(0..=4))]
+    #[arg(long, default_value_t = 1, value_parser = parse_pcf)]
     pub pcf: u32,
     /// Fixed exposure (default: from the lights).
-    #[arg(long)]
+    #[arg(long, value_parser = positive)]
     pub exposure: Option<f32>,
     /// No overlay.
     #[arg(long)]
@@ -105,11 +105,67 @@ pub struct ViewArgs {
     pub bench: bool,
     /// With --bench: also measure the optimised path with the lights turning about +Y by this many
     /// degrees per frame (every shadow map goes stale; 0 = skip).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = finite, allow_negative_numbers = true)]
     pub bench_turn_deg: f32,
     /// With --bench: which paths to time (naive, steady, turning), comma-separated.
-    #[arg(long, default_value = "naive,steady,turning", value_delimiter = ',')]
-    pub bench_paths: Vec<String>,
+    #[arg(
+        long,
+        value_enum,
+        default_value = "naive,steady,turning",
+        value_delimiter = ','
+    )]
+    pub bench_paths: Vec<BenchPath>,
+}
+
+/// A path `--bench` times.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BenchPath {
+    /// Every cost saver off.
+    Naive,
+    /// The optimised path, the lights still.
+    Steady,
+    /// The optimised path, the lights turning (`--bench-turn-deg`).
+    Turning,
+}
+
+/// A finite number of degrees.
+fn finite(s: &str) -> Result<f32, String> {
+    let v: f32 = s.trim().parse().map_err(|e| format!("{e}"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("must be a finite number, got {s}"))
+    }
+}
+
+/// A finite number ≥ 0.
+fn non_negative(s: &str) -> Result<f32, String> {
+    let v = finite(s)?;
+    if v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("must be at least 0, got {s}"))
+    }
+}
+
+/// A finite number > 0.
+fn positive(s: &str) -> Result<f32, String> {
+    let v = finite(s)?;
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("must be greater than 0, got {s}"))
+    }
+}
+
+/// PCF taps: 0, 1 or 4 (the kernels the shading pass has).
+fn parse_pcf(s: &str) -> Result<u32, String> {
+    match s.trim() {
+        "0" => Ok(0),
+        "1" => Ok(1),
+        "4" => Ok(4),
+        _ => Err(format!("must be 0 (no shadows), 1 or 4, got {s}")),
+    }
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -119,7 +175,7 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let w: u32 = w.trim().parse().map_err(|e| format!("width: {e}"))?;
     let h: u32 = h.trim().parse().map_err(|e| format!("height: {e}"))?;
     if !(1..=8192).contains(&w) || !(1..=8192).contains(&h) {
-        return Err(format!("size out of range: {w}x{h}"));
+        return Err(format!("size out of range: {w}x{h} (each side 1 to 8192)"));
     }
     Ok((w, h))
 }
@@ -143,7 +199,7 @@ impl ViewArgs {
         o.shadow_size = self.shadow_size(size);
         o.pcf_taps = match self.pcf {
             0 => 0,
-            1..=3 => 1,
+            1 => 1,
             _ => 4,
         };
         o.exposure = self.exposure;

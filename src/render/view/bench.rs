@@ -6,7 +6,7 @@
 //! Output: a table on stdout, one row per path, and the speed-ups over the naive path. Each frame
 //! waits for the device, so a row is the latency of a frame, not the throughput of a queue.
 
-use super::args::{ViewArgs, camera_at};
+use super::args::{BenchPath, ViewArgs, camera_at};
 use crate::lights::Light;
 use crate::render::gpu::Gpu;
 use crate::render::overlay::Status;
@@ -93,18 +93,18 @@ pub(super) fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let mut rows: Vec<(String, f64, FrameSummary)> = Vec::new();
     let mut scratch = Vec::new();
     // (--bench-paths key, label, options, degrees the lights turn per frame)
-    let paths: [(&str, &str, Options, f32); 3] = [
-        ("naive", "naive", naive_opts, 0.0),
-        ("steady", "optimised, steady lights", opt, 0.0),
+    let paths: [(BenchPath, &str, Options, f32); 3] = [
+        (BenchPath::Naive, "naive", naive_opts, 0.0),
+        (BenchPath::Steady, "optimised, steady lights", opt, 0.0),
         (
-            "turning",
+            BenchPath::Turning,
             "optimised, lights turning",
             opt,
             args.bench_turn_deg,
         ),
     ];
     for (key, name, options, turn) in paths {
-        if (key == "turning" && turn == 0.0) || !args.bench_paths.iter().any(|p| p == key) {
+        if (key == BenchPath::Turning && turn == 0.0) || !args.bench_paths.contains(&key) {
             continue;
         }
         renderer.set_options(options);
