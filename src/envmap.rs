@@ -670,7 +670,7 @@ fn exr_channels(meta: &exr::meta::MetaData) -> Result<(usize, ExrChannels), Inpu
     }
     let all: Vec<String> = meta.headers.iter().flat_map(names).collect();
     Err(InputError::Unusable(format!(
-        "OpenEXR has no R, G, B or Y channels (it has: {})",
+        "OpenEXR needs R, G and B channels, or Y (it has: {})",
         if all.is_empty() {
             "none".into()
         } else {

@@ -102,9 +102,16 @@ pub struct Mesh {
 impl Mesh {
     /// Loads every object of an OBJ file into one mesh (triangulated, one index per vertex).
     pub fn load_obj(path: &Path) -> anyhow::Result<Mesh> {
-        let (models, _materials) = tobj::load_obj(path, &Self::OBJ_OPTIONS)
+        // tobj's own open error carries no reason ("open file failed"): open the file here.
+        let file = std::fs::File::open(path)
             .with_context(|| format!("reading the mesh {}", path.display()))?;
-        Self::from_models(&models).with_context(|| format!("{} holds no triangles", path.display()))
+        let mut reader = std::io::BufReader::new(file);
+        let (models, _materials) = tobj::load_obj_buf(&mut reader, &Self::OBJ_OPTIONS, |_| {
+            // Materials are not used: an .mtl file is not read.
+            Err(tobj::LoadError::OpenFileFailed)
+        })
+        .with_context(|| format!("reading the mesh {}", path.display()))?;
+        Self::from_models(&models).with_context(|| format!("the mesh {}", path.display()))
     }
 
     /// The built-in mesh: the low-resolution Stanford bunny (tests/data/bunny-low.obj, see
@@ -153,7 +160,7 @@ impl Mesh {
             mesh.indices.extend(m.indices.iter().map(|i| i + base));
         }
         if mesh.indices.is_empty() {
-            bail!("no triangles");
+            bail!("holds no triangles");
         }
         if !all_have_normals || mesh.normals.iter().any(|n| !n.is_finite()) {
             mesh.normals = smooth_normals(&mesh.positions, &mesh.indices);
