@@ -432,6 +432,10 @@ fn serve_configuration_errors_exit_with_a_message() {
             "must be a finite number",
         ),
         (
+            vec!["serve", "--switch-period=-1"],
+            "--switch-period must be at least 0",
+        ),
+        (
             vec![
                 "serve",
                 "--source",

@@ -378,6 +378,12 @@ fn make_source(
             if !(0.0..=1.0).contains(&args.clouds) {
                 bail!("--clouds must be between 0 and 1, got {}", args.clouds);
             }
+            if args.switch_period < 0.0 {
+                bail!(
+                    "--switch-period must be at least 0 (0: no lamp), got {}",
+                    args.switch_period
+                );
+            }
             let defaults = SyntheticConfig::default();
             let cfg = SyntheticConfig {
                 width,
