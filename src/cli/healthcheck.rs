@@ -38,7 +38,12 @@ pub fn run(addr: &str) -> anyhow::Result<()> {
     s.set_read_timeout(Some(timeout))?;
     write!(s, "GET /healthz HTTP/1.0\r\nHost: {addr}\r\n\r\n")?;
     let mut reply = String::new();
-    s.read_to_string(&mut reply)?;
+    s.read_to_string(&mut reply).map_err(|e| match e.kind() {
+        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut => {
+            anyhow::anyhow!("{sock} accepted but did not answer /healthz within {timeout:?}")
+        }
+        _ => anyhow::anyhow!("reading the answer from {sock}: {e}"),
+    })?;
     let status = reply.lines().next().unwrap_or("");
     if status.split_whitespace().nth(1) == Some("200") {
         Ok(())
