@@ -1033,7 +1033,17 @@ mod tests {
     fn exr_without_usable_channels_says_what_it_has() {
         match first_pixel(&exr_with(&[("Z", 1.0), ("A", 1.0)])) {
             Err(InputError::Unusable(m)) => {
-                assert!(m.contains("no R, G, B or Y") && m.contains("A, Z"), "{m}")
+                assert!(
+                    m.contains("needs R, G and B channels, or Y") && m.contains("A, Z"),
+                    "{m}"
+                )
+            }
+            other => panic!("{other:?}"),
+        }
+        // Two of the three colours are not enough either.
+        match first_pixel(&exr_with(&[("R", 1.0), ("G", 1.0)])) {
+            Err(InputError::Unusable(m)) => {
+                assert!(m.contains("needs R, G and B") && m.contains("G, R"), "{m}")
             }
             other => panic!("{other:?}"),
         }

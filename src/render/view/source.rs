@@ -56,7 +56,18 @@ impl Source {
 pub fn read_lightset(path: &std::path::Path) -> anyhow::Result<LightSet> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{} is not a LightSet", path.display()))
+    let set: LightSet = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a LightSet", path.display()))?;
+    if set.lights.len() > crate::render::shading::MAX_LIGHTS {
+        eprintln!(
+            "vemlight view: {} holds {} lights; the renderer draws the first {} (a prefix of the \
+             progressive order)",
+            path.display(),
+            set.lights.len(),
+            crate::render::shading::MAX_LIGHTS
+        );
+    }
+    Ok(set)
 }
 
 /// Extracts `lights` lights from a map file (the CLI's defaults otherwise).
