@@ -91,7 +91,7 @@ fn world_to_local(w: DVec3) -> DVec3 {
     DVec3::new(w.x, -w.z, w.y)
 }
 
-/// HDS03 forward map, (u,v) ∈ [0,1]² → hemisphere, local z up. ALGORITHMS.md §1 steps 1–3.
+/// HDS03 forward map, (u,v) ∈ \[0,1\]² → hemisphere, local z up. ALGORITHMS.md §1 steps 1–3.
 pub fn hds03_square_to_hemisphere(uv: DVec2) -> DVec3 {
     debug_assert!((-1e-9..=1.0 + 1e-9).contains(&uv.x) && (-1e-9..=1.0 + 1e-9).contains(&uv.y));
     let a = 2.0 * uv.x - 1.0;
@@ -138,7 +138,7 @@ pub fn invert_hds03_hemisphere(w: DVec3) -> Option<DVec2> {
     Some(DVec2::new((a + 1.0) * 0.5, (b + 1.0) * 0.5).clamp(DVec2::ZERO, DVec2::ONE))
 }
 
-/// Clarberg's equal-area octahedral map, (u,v) ∈ [0,1]² → sphere, local z up. ALGORITHMS.md §1.
+/// Clarberg's equal-area octahedral map, (u,v) ∈ \[0,1\]² → sphere, local z up. ALGORITHMS.md §1.
 pub fn equal_area_square_to_sphere(uv: DVec2) -> DVec3 {
     let up = 2.0 * uv.x - 1.0;
     let vp = 2.0 * uv.y - 1.0;

@@ -25,7 +25,7 @@ pub enum FilterKind {
     /// Binomial coefficients C(M−1, n)/2^(M−1): response cos^(M−1)(πf), never negative.
     #[value(help = "binomial FIR, never overshoots (the default)")]
     Binomial,
-    /// Hamming-windowed sinc, h[n] = w[n]·2f_c·sinc(2f_c(n − (M−1)/2)), normalised to Σh = 1.
+    /// Hamming-windowed sinc, h\[n\] = w\[n\]·2f_c·sinc(2f_c(n − (M−1)/2)), normalised to Σh = 1.
     #[value(help = "Hamming-windowed sinc, sharper cut-off (--cutoff-hz)")]
     Sinc,
 }
@@ -82,7 +82,7 @@ impl FilterSpec {
         Ok(())
     }
 
-    /// The kernel, h[0] applied to the newest frame; Σh = 1.
+    /// The kernel, h\[0\] applied to the newest frame; Σh = 1.
     pub fn kernel(&self) -> Vec<f64> {
         let m = match self.kind {
             FilterKind::None => 1,

@@ -1,5 +1,7 @@
 //! `vemlight serve`: the capture daemon — a frame source, the pipeline threads and the HTTP /
 //! WebSocket server, until SIGINT or SIGTERM.
+// The flags' doc comments are their `--help` text, written for a terminal (a URL, `<camera>`).
+#![allow(rustdoc::bare_urls, rustdoc::invalid_html_tags)]
 
 use super::args::{ExtractionArgs, ProjectionArgs};
 use crate::envmap::{DEFAULT_MAX_PIXELS, Projection};

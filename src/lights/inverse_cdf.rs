@@ -91,7 +91,7 @@ impl PiecewiseConstant2D {
         self.marginal.build(integrals.into_iter());
     }
 
-    /// The discontinuous warp: ξ ∈ [0,1]² → (u, v) ∈ [0,1]², v from the marginal with ξ.y, then u
+    /// The discontinuous warp: ξ ∈ \[0,1\]² → (u, v) ∈ \[0,1\]², v from the marginal with ξ.y, then u
     /// from row ⌊v·H⌋'s conditional with ξ.x.
     pub fn sample(&self, xi: DVec2) -> DVec2 {
         let v = self.marginal.sample(xi.y);

@@ -327,7 +327,7 @@ pub const SECOND_START_EXPONENT: f32 = 0.5;
 pub const MORE_START_EXPONENTS: [f32; 2] = [0.375, 0.75];
 
 /// The most lights that take [`MORE_START_EXPONENTS`]: the estimate that chooses between starts
-/// has at least 32 of its [`CHECK_GRID`]² bins per light there. At 64 lights (16 bins a light) a
+/// has at least 32 of its `CHECK_GRID`² bins per light there. At 64 lights (16 bins a light) a
 /// third start lowered the median error but twice chose a start that was 1.3 × worse.
 pub const MORE_STARTS_MAX_LIGHTS: usize = CHECK_GRID * CHECK_GRID / 32;
 
@@ -399,7 +399,7 @@ const TILT_CORE_SHARE: f64 = 0.5;
 /// The binned reference a single map's choices are made by (the starts up to
 /// [`MORE_STARTS_MAX_LIGHTS`] lights, the tilt; above, the starts take [`WIDE_CHECK_GRID`]): the
 /// domain square (its half-resolution copy, the same bins' energies and moments from a quarter of
-/// the texels) binned [`CHECK_GRID`]² at [`CHECK_NORMALS`] normals.
+/// the texels) binned `CHECK_GRID`² at [`CHECK_NORMALS`] normals.
 fn check_reference(image: &DomainImage) -> IrradianceReference {
     check_reference_at(image, CHECK_GRID)
 }
@@ -758,7 +758,7 @@ impl Extractor {
     /// assignment, re-seed each light at its centroid and assign again, `steps` times. Each step
     /// costs one more assignment pass; two is the fewest with which the diffuse error is at most
     /// median cut's at every N ≥ 16 (docs/EVALUATION.md, docs/PERFORMANCE.md). A single map of 65
-    /// to 128 lights takes twice as many ([`STEPS_FACTOR`]).
+    /// to 128 lights takes twice as many (`STEPS_FACTOR`).
     pub fn set_refine(&mut self, steps: usize) {
         self.refine = steps.min(8);
     }

@@ -173,7 +173,7 @@ pub struct BrokerUrl {
 
 impl BrokerUrl {
     /// Parses and checks `url`. Credentials in it are refused: a command line is seen by every
-    /// user of the machine (give them in the environment or a file, [`LoginArgs`]).
+    /// user of the machine (give them in the environment or a file, `LoginArgs`).
     pub fn parse(url: &str) -> Result<BrokerUrl, String> {
         let (scheme, rest) = url
             .split_once("://")

@@ -107,7 +107,7 @@ impl Distribution2D {
         &self.conditional_cdf[j * (self.w + 1)..(j + 1) * (self.w + 1)]
     }
 
-    /// The warp T⁻¹: a uniform point ξ ∈ [0,1]² → a point distributed by the density.
+    /// The warp T⁻¹: a uniform point ξ ∈ \[0,1\]² → a point distributed by the density.
     pub fn sample(&self, xi: DVec2) -> DVec2 {
         let (w, h) = (self.w as f64, self.h as f64);
         // y from the marginal: its CDF is piecewise linear and strictly increasing.

@@ -128,7 +128,7 @@ impl DomainImage {
 }
 
 /// The side of the domain square for a source of this size: as fine as possible while every texel
-/// still receives about [`SOURCE_PIXELS_PER_TEXEL`] source pixels where the source is coarsest,
+/// still receives about `SOURCE_PIXELS_PER_TEXEL` source pixels where the source is coarsest,
 /// rounded down to an even number.
 pub fn auto_side(projection: &Projection, width: usize, height: usize, domain: Domain) -> usize {
     // The largest pixel solid angle: scan a cross through the image (lat-long: the equator row;
@@ -156,7 +156,7 @@ pub fn auto_side(projection: &Projection, width: usize, height: usize, domain: D
 /// The precomputed source-pixel → domain-texel table for one (projection, size, domain, side).
 ///
 /// The per-frame pass streams this table and the pixels once, so the table's size is the cost.
-/// Lat-long sources get a compact table (see [`LatLongTable`]); other projections one entry per
+/// Lat-long sources get a compact table (see `LatLongTable`); other projections one entry per
 /// pixel inside the domain.
 ///
 /// On several threads the square is cut into bands of whole texel rows with about equal pixel
@@ -313,7 +313,7 @@ fn scatter_pixels(
 /// Rec. 709 luminance weights, as [`EnvMap::luminance`].
 const LUMINANCE: Vec3A = Vec3A::new(0.2126, 0.7152, 0.0722);
 
-/// The lat-long pass (see [`LatLongTable`]) over the pixel rows `rows`: per span, Σ L, Σ Y,
+/// The lat-long pass (see `LatLongTable`) over the pixel rows `rows`: per span, Σ L, Σ Y,
 /// Σ Y sin φ and Σ Y cos φ in registers, then one deposit scaled by the row's factors. Compiled
 /// twice, the second time for CPUs with AVX2 and FMA (chosen at run time): their three-operand
 /// forms and broadcasts take about a tenth off the pass.

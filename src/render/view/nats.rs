@@ -268,7 +268,7 @@ impl NatsFeed {
     }
 
     /// A line for the log when sets were dropped since the last report (at most every
-    /// [`REPORT_EVERY`]).
+    /// `REPORT_EVERY`).
     pub fn drop_report(&self) -> Option<String> {
         let (stats, last_too_old) = {
             let s = lock(&self.shared);
