@@ -135,3 +135,53 @@ fn a_shadow_budget_is_asked_of_the_stream_and_kept_by_the_client() {
     assert_eq!(uris, vec!["/v1/stream?lights=4&shadowed=2".to_owned(); 2]);
     drop(feed);
 }
+
+/// A daemon that closes the stream with a reason (1011: its pipeline stopped) before any set: the
+/// client's "no LightSet received" says that reason, not only that nothing came.
+#[allow(clippy::result_large_err)]
+#[test]
+fn a_close_with_a_reason_is_said() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    // Every connection for 2 s is answered so, as a daemon whose pipeline stopped would.
+    listener.set_nonblocking(true).unwrap();
+    let server = std::thread::spawn(move || {
+        let until = Instant::now() + Duration::from_secs(2);
+        while Instant::now() < until {
+            let Ok((tcp, _)) = listener.accept() else {
+                std::thread::sleep(Duration::from_millis(10));
+                continue;
+            };
+            tcp.set_nonblocking(false).unwrap();
+            let mut ws = tungstenite::accept_hdr(
+                tcp,
+                |_: &tungstenite::handshake::server::Request,
+                 mut resp: tungstenite::handshake::server::Response| {
+                    resp.headers_mut()
+                        .insert("Sec-WebSocket-Protocol", SUBPROTOCOL.parse().unwrap());
+                    Ok(resp)
+                },
+            )
+            .unwrap();
+            ws.close(Some(tungstenite::protocol::CloseFrame {
+                code: tungstenite::protocol::frame::coding::CloseCode::Error,
+                reason: "the pipeline stopped".into(),
+            }))
+            .unwrap();
+            let deadline = Instant::now() + Duration::from_millis(500);
+            while Instant::now() < deadline && ws.read().is_ok() {}
+        }
+    });
+    let url = format!("ws://127.0.0.1:{port}/v1/stream?lights=4");
+    let mut feed = LightFeed::open(&Source::parse(&url), 4).unwrap();
+    let err = feed
+        .wait_first(Duration::from_secs(1))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("1011") && err.contains("the pipeline stopped"),
+        "{err}"
+    );
+    server.join().unwrap();
+    drop(feed);
+}

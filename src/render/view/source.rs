@@ -20,6 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
+use tungstenite::protocol::frame::coding::CloseCode;
 
 /// Where `vemlight serve` listens by default.
 pub const DEFAULT_STREAM: &str = "ws://127.0.0.1:7878/v1/stream";
@@ -398,7 +399,14 @@ fn connect_and_read(
                     }
                 }
             },
-            Ok(tungstenite::Message::Close(_)) => return Ok(()),
+            // The daemon says why it closes (1008 at capacity, 1011 its pipeline stopped…):
+            // kept for the "no LightSet received" message and the reconnect log.
+            Ok(tungstenite::Message::Close(frame)) => {
+                if let Some(f) = frame.filter(|f| f.code != CloseCode::Normal) {
+                    anyhow::bail!("the stream closed: {} {}", u16::from(f.code), f.reason);
+                }
+                return Ok(());
+            }
             Ok(_) => {} // pings are answered by tungstenite; binary messages are not ours
             Err(tungstenite::Error::Io(e))
                 if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
