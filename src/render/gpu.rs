@@ -99,6 +99,12 @@ pub struct Gpu {
     pub max_layers: u32,
 }
 
+/// "llvmpipe (LLVM 15.0.6, 256 bits) on Vulkan".
+fn describe_adapter(adapter: &wgpu::Adapter) -> String {
+    let info = adapter.get_info();
+    format!("{} on {:?}", info.name, info.backend)
+}
+
 /// The device features the render targets need: none where WebGPU's guarantees cover them, else
 /// the adapter's own format capabilities; or, where the adapter cannot render to one of them, why.
 fn render_target_features(
@@ -111,17 +117,16 @@ fn render_target_features(
             .contains(wgpu::TextureUsages::RENDER_ATTACHMENT)
     };
     let offered = adapter.features();
+    let specific = offered.contains(wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES);
     let mut needed = wgpu::Features::empty();
     for &format in targets {
         // The adapter's own capabilities are what its device validates against: a GL driver
         // may lack a format that WebGPU guarantees (32-bit float colour without
         // EXT_color_buffer_float).
         let guaranteed = renders(format.guaranteed_format_features(offered));
-        let specific = offered.contains(wgpu::Features::TEXTURE_ADAPTER_SPECIFIC_FORMAT_FEATURES);
         if !renders(adapter.get_texture_format_features(format)) || !(guaranteed || specific) {
-            let info = adapter.get_info();
             return Err(GpuError::Format {
-                adapter: format!("{} on {:?}", info.name, info.backend),
+                adapter: describe_adapter(adapter),
                 format,
             });
         }
@@ -187,8 +192,7 @@ impl Gpu {
 
     /// "llvmpipe (LLVM 15.0.6, 256 bits) on Vulkan".
     pub fn describe(&self) -> String {
-        let info = self.adapter.get_info();
-        format!("{} on {:?}", info.name, info.backend)
+        describe_adapter(&self.adapter)
     }
 
     /// Whether this adapter is the GL backend, where the shadow array pads its layer count

@@ -197,11 +197,7 @@ impl ViewArgs {
             o.reuse_deg = (!self.no_reuse).then_some(self.reuse_deg.max(0.0));
         }
         o.shadow_size = self.shadow_size(size);
-        o.pcf_taps = match self.pcf {
-            0 => 0,
-            1 => 1,
-            _ => 4,
-        };
+        o.pcf_taps = self.pcf; // 0, 1 or 4: `parse_pcf` admits no other
         o.exposure = self.exposure;
         o.overlay = !self.no_overlay;
         o
