@@ -57,14 +57,16 @@ fn tilted(d: DVec3, floor_y: f64, a: f64) -> DVec3 {
 /// Tilts the lights that have a target toward it and returns the fraction taken (0: none).
 /// `targets[k]` is the sine of the elevation light k moves toward, `None` where it stays;
 /// `floor` is the map's ∫ L·max(0, ω_y) dω in the lights' units, the floor a point set should
-/// give. The fraction is the largest k/[`TILT_STEPS`] at or below the one that makes the lights'
-/// floor equal `floor` (none if the targets move it away) whose estimated diffuse error at
-/// `check` is within `allowance` of the untilted one. Energies and ids are untouched.
+/// give. The fraction is the largest k/[`TILT_STEPS`] at or below both `max_fraction` and the one
+/// that makes the lights' floor equal `floor` (none if the targets move it away) whose estimated
+/// diffuse error at `check` is within `allowance` of the untilted one. Energies and ids are
+/// untouched.
 pub(super) fn tilt_toward_floor(
     lights: &mut [Light],
     targets: &[Option<f64>],
     floor: f64,
     allowance: f64,
+    max_fraction: f64,
     check: &IrradianceReference,
 ) -> f64 {
     debug_assert_eq!(lights.len(), targets.len());
@@ -109,7 +111,7 @@ pub(super) fn tilt_toward_floor(
     if (b0 > 0.0 && b1 < b0) || (b0 < 0.0 && b1 > b0) {
         // The largest eighth that does not overshoot a zero bias, then smaller ones, until one
         // keeps the estimated diffuse error within the allowance.
-        let a_zero = (b0 / (b0 - b1)).min(1.0);
+        let a_zero = (b0 / (b0 - b1)).min(max_fraction.min(1.0));
         let k_max = (a_zero * TILT_STEPS as f64).floor() as usize;
         let e0 = error(0.0);
         for k in (1..=k_max).rev() {
@@ -183,7 +185,14 @@ mod tests {
         let half = floor_of(&lights) - 4.0 * lights[0].luminance() * (s as f64 - 0.5) / 2.0;
         for floor in [half, half + 0.01] {
             let mut tilted_set = lights.clone();
-            let a = tilt_toward_floor(&mut tilted_set, &targets, floor, DESCENT_ALLOWANCE, &check);
+            let a = tilt_toward_floor(
+                &mut tilted_set,
+                &targets,
+                floor,
+                DESCENT_ALLOWANCE,
+                1.0,
+                &check,
+            );
             // The lights descending toward a uniform sky's floor lower the estimate: a tilt is
             // taken, the largest eighth that stays at or above the floor.
             assert!(a > 0.0 && a <= 0.5 + 1e-12, "took {a}");
@@ -192,11 +201,24 @@ mod tests {
                 assert_eq!((t.id, t.irradiance), (l.id, l.irradiance));
             }
         }
+        // The whole way to the targets gives this floor; a cap on the fraction holds the tilt
+        // under it, and the floor is then given too much, as before the tilt, only less so.
+        let whole = floor_of(&lights) - 4.0 * lights[0].luminance() * (s as f64 - 0.5);
+        for cap in [0.25, 0.5] {
+            let mut capped = lights.clone();
+            let a = tilt_toward_floor(&mut capped, &targets, whole, DESCENT_ALLOWANCE, cap, &check);
+            assert!(a > 0.0 && a <= cap + 1e-12, "took {a} under a cap of {cap}");
+            let bias = floor_of(&capped) - whole;
+            assert!(
+                bias > 0.0 && bias < floor_of(&lights) - whole,
+                "bias {bias}"
+            );
+        }
         // A floor above what the lights give: no tilt.
         let mut same = lights.clone();
         let above = floor_of(&lights) + 0.1;
         assert_eq!(
-            tilt_toward_floor(&mut same, &targets, above, DESCENT_ALLOWANCE, &check),
+            tilt_toward_floor(&mut same, &targets, above, DESCENT_ALLOWANCE, 1.0, &check),
             0.0
         );
         assert_eq!(same, lights);
@@ -212,14 +234,14 @@ mod tests {
         let up = vec![Some(0.7); 4];
         let more = floor_of(&low) + 4.0 * low[0].luminance() * (0.7 - 0.2) / 2.0;
         let mut risen = low.clone();
-        let a = tilt_toward_floor(&mut risen, &up, more, RISE_ALLOWANCE, &check);
+        let a = tilt_toward_floor(&mut risen, &up, more, RISE_ALLOWANCE, 1.0, &check);
         assert!(a > 0.0 && a <= 0.5 + 1e-12, "took {a}");
         assert!(floor_of(&risen) <= more + 1e-6, "overshot the floor");
         // Lights without a target stay, whatever the floor.
         let mut same = lights.clone();
         let none = vec![None; 4];
         assert_eq!(
-            tilt_toward_floor(&mut same, &none, half, DESCENT_ALLOWANCE, &check),
+            tilt_toward_floor(&mut same, &none, half, DESCENT_ALLOWANCE, 1.0, &check),
             0.0
         );
         assert_eq!(same, lights);
