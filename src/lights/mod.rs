@@ -1222,18 +1222,20 @@ impl Extractor {
         } else {
             None
         };
-        if self.tilt && single && n <= TILT_MAX_LIGHTS {
-            let check = check.get_or_insert_with(|| check_reference(steps_image));
-            self.tilt_toward_floor(image, steps_image, &mut lights, check, 1.0);
-        } else if self.tilt && single && n <= WIDE_TILT_MAX_LIGHTS {
-            let wide = check_reference_at(steps_image, WIDE_CHECK_GRID);
-            self.tilt_toward_floor(
-                image,
-                steps_image,
-                &mut lights,
-                &wide,
-                WIDE_TILT_MAX_FRACTION,
-            );
+        if self.tilt && single && n <= WIDE_TILT_MAX_LIGHTS {
+            // Up to TILT_MAX_LIGHTS on the 32² reference the starts share, the whole way;
+            // above, on the 48² one, at most half of it.
+            let wide;
+            let (check, max_fraction) = if n <= TILT_MAX_LIGHTS {
+                (
+                    &*check.get_or_insert_with(|| check_reference(steps_image)),
+                    1.0,
+                )
+            } else {
+                wide = check_reference_at(steps_image, WIDE_CHECK_GRID);
+                (&wide, WIDE_TILT_MAX_FRACTION)
+            };
+            self.tilt_toward_floor(image, steps_image, &mut lights, check, max_fraction);
         }
         if let Some(k) = core_split {
             self.split_core(image, &mut lights, k);

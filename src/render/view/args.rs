@@ -193,8 +193,9 @@ impl ViewArgs {
             if self.no_glossy_refine {
                 o.glossy_threshold = None;
             }
-            o.cluster_deg = self.cluster_deg.max(0.0);
-            o.reuse_deg = (!self.no_reuse).then_some(self.reuse_deg.max(0.0));
+            o.cluster_deg = self.cluster_deg;
+            // Neither is negative: `non_negative` parsed them.
+            o.reuse_deg = (!self.no_reuse).then_some(self.reuse_deg);
         }
         o.shadow_size = self.shadow_size(size);
         o.pcf_taps = self.pcf; // 0, 1 or 4: `parse_pcf` admits no other
