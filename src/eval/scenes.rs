@@ -200,21 +200,7 @@ pub fn scaled(map: &EnvMap, gain: f32) -> EnvMap {
 /// (low and high, clear and hazy, one with clouds), and a room lit by a window and a lamp — the
 /// cases the shared maps have few of.
 pub fn hard_skies(width: usize) -> Vec<(String, EnvMap)> {
-    use crate::sky::{SyntheticConfig, SyntheticSky};
-    let sky = |elev: f64, turbidity: f64, clouds: f64| {
-        SyntheticSky::new(SyntheticConfig {
-            width,
-            height: width / 2,
-            start_elevation_deg: elev,
-            sun_speed_deg_per_s: 0.0,
-            turbidity,
-            clouds,
-            cloud_drift_deg_per_s: 0.0,
-            switch_light: None,
-            ..SyntheticConfig::default()
-        })
-        .render(0.0)
-    };
+    let sky = |elev, turbidity, clouds| still_sky(width, elev, turbidity, clouds);
     vec![
         ("sky-low-clear".into(), sky(6.0, 2.0, 0.0)),
         ("sky-high-clear".into(), sky(55.0, 2.0, 0.0)),
@@ -222,6 +208,24 @@ pub fn hard_skies(width: usize) -> Vec<(String, EnvMap)> {
         ("sky-high-hazy-clouds".into(), sky(40.0, 6.0, 0.4)),
         ("room-window-lamp".into(), room(width)),
     ]
+}
+
+/// The built-in sky (Hosek-Wilkie with a real-size sun) at one instant, `width` × `width`/2: the sun
+/// `elevation` degrees up, the given turbidity and cloud cover, nothing moving.
+pub fn still_sky(width: usize, elevation: f64, turbidity: f64, clouds: f64) -> EnvMap {
+    use crate::sky::{SyntheticConfig, SyntheticSky};
+    SyntheticSky::new(SyntheticConfig {
+        width,
+        height: width / 2,
+        start_elevation_deg: elevation,
+        sun_speed_deg_per_s: 0.0,
+        turbidity,
+        clouds,
+        cloud_drift_deg_per_s: 0.0,
+        switch_light: None,
+        ..SyntheticConfig::default()
+    })
+    .render(0.0)
 }
 
 /// A room lit by a window and a lamp: dim walls, a brighter floor patch, a window of bright
