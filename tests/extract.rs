@@ -992,10 +992,7 @@ fn the_wide_start_keeps_city_shadows_at_64_lights_within_median_cuts() {
     use vemlight::eval::accuracy::Truth;
     let map = load("city.exr");
     let truth = Truth::new(&map, Domain::Sphere);
-    let shadowed = |lights: &[vemlight::lights::Light]| {
-        let per_scene = truth.shadowed(lights);
-        per_scene.iter().sum::<f64>() / per_scene.len() as f64
-    };
+    let shadowed = |lights: &[vemlight::lights::Light]| truth.shadowed_mean(lights);
     let lights = |m| {
         Extractor::new()
             .extract(&map, &opts(64, Domain::Sphere, m))

@@ -79,10 +79,9 @@ fn sweep(yaw_deg: f64) {
                                 side: None,
                             };
                             let lights = Extractor::new().extract(&map, &opts).lights;
-                            let shadowed = truth.shadowed(&lights);
                             (
                                 truth.diffuse.error(&lights).rel_rms,
-                                shadowed.iter().sum::<f64>() / shadowed.len() as f64,
+                                truth.shadowed_mean(&lights),
                             )
                         };
                         let ours = errors(Method::Voronoi);

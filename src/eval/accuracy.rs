@@ -92,6 +92,13 @@ impl Truth {
             .map(|(s, r)| r.error(s, lights))
             .collect()
     }
+
+    /// The shadowed error of `lights`, the mean over the scenes (0 with none), as the evaluation
+    /// reports it.
+    pub fn shadowed_mean(&self, lights: &[Light]) -> f64 {
+        let per_scene = self.shadowed(lights);
+        per_scene.iter().sum::<f64>() / per_scene.len().max(1) as f64
+    }
 }
 
 /// One [`Extractor`] per method, kept across maps so per-count tables (the paper variant's cell

@@ -231,8 +231,7 @@ pub fn frontier(
                 };
                 let lights = ex.extract(map, &opts).lights;
                 let diffuse = truth.diffuse.error(&lights).rel_rms;
-                let sh = truth.shadowed(&lights);
-                let shadowed = sh.iter().sum::<f64>() / sh.len().max(1) as f64;
+                let shadowed = truth.shadowed_mean(&lights);
                 let kd = k.diffuse.rel_rms;
                 let ms = mc.shadowed_mean().unwrap_or(f64::NAN);
                 out.push(FrontierRow {
