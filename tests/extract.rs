@@ -768,6 +768,55 @@ fn far_sky_in_a_suns_cell_does_not_widen_its_disc() {
     );
 }
 
+/// ALGORITHMS.md §4.2, "Core azimuth": a 60° sun through haze and cloud, whose cell at 16 lights
+/// also holds a few per cent of the sky beside it, gets a light on the sun's azimuth; at its
+/// cell's centroid (the turn off) that light sits 0.1–0.2° to the side, a third of the sun's disc,
+/// and its shadow with it. The turn keeps the elevation, so the floor it gives is unchanged.
+#[test]
+fn a_suns_light_lies_on_the_suns_azimuth() {
+    use vemlight::sky::{SyntheticConfig, SyntheticSky};
+    let mut sky = SyntheticSky::new(SyntheticConfig {
+        width: 1024,
+        height: 512,
+        start_elevation_deg: 60.0,
+        sun_speed_deg_per_s: 0.0,
+        turbidity: 9.0,
+        clouds: 0.3,
+        cloud_drift_deg_per_s: 0.0,
+        switch_light: None,
+        ..SyntheticConfig::default()
+    });
+    let map = sky.render(0.0);
+    let sun = sky.sun_direction(0.0);
+    // The angle between two directions' azimuths, as an arc at the sun's elevation (degrees).
+    let across = |d: DVec3| {
+        let h = |v: DVec3| DVec3::new(v.x, 0.0, v.z).normalize();
+        h(d).angle_between(h(sun)).to_degrees() * sun.y.asin().cos()
+    };
+    let light = |turn: bool| {
+        let mut ex = Extractor::new();
+        ex.set_core_azimuth(turn);
+        *brightest(
+            &ex.extract(&map, &opts(16, Domain::Sphere, Method::Voronoi))
+                .lights,
+        )
+    };
+    let (turned, centroid) = (light(true), light(false));
+    assert!(
+        across(turned.dir()) < 0.03 && across(centroid.dir()) > 0.1,
+        "the sun's light is {:.3}° across from the sun's azimuth, {:.3}° at its cell's centroid",
+        across(turned.dir()),
+        across(centroid.dir())
+    );
+    assert!(
+        (turned.to_light[1] - centroid.to_light[1]).abs() < 1e-6
+            && turned.luminance() == centroid.luminance(),
+        "the turn keeps the elevation and the energy: y {} against {}",
+        turned.to_light[1],
+        centroid.to_light[1]
+    );
+}
+
 /// ALGORITHMS.md §12, "Not across the horizon": no light's disc crosses the horizon, on every
 /// map and on a sky that is brightest in a wide band just above it (where a cell's core spreads
 /// over tens of degrees and the unclamped disc would reach below the horizon). That a light high
@@ -1119,13 +1168,16 @@ fn floor_excess(map: &EnvMap, lights: &[vemlight::lights::Light]) -> f64 {
 /// P ≈ |M|) does not move. Energy and ids are never touched.
 #[test]
 fn the_tilt_takes_the_point_lights_excess_off_the_floor() {
-    let mut plain = Extractor::new();
+    // The tilt alone: the core's turn in azimuth that follows it is off in both.
+    let (mut plain, mut tilted) = (Extractor::new(), Extractor::new());
     plain.set_tilt(false);
+    plain.set_core_azimuth(false);
+    tilted.set_core_azimuth(false);
     let map = load("overcast-plaza.exr");
     let reference = IrradianceReference::from_map(&map, Domain::Sphere);
     let o = opts(32, Domain::Sphere, Method::Voronoi);
     let without = plain.extract(&map, &o).lights;
-    let with = Extractor::new().extract(&map, &o).lights;
+    let with = tilted.extract(&map, &o).lights;
     let (ew, eo) = (floor_excess(&map, &with), floor_excess(&map, &without));
     let (dw, dn) = (
         reference.error(&with).rel_rms,
@@ -1158,7 +1210,7 @@ fn the_tilt_takes_the_point_lights_excess_off_the_floor() {
 
     let sun = hard_sky("sky-low-clear");
     let (with, without) = (
-        Extractor::new().extract(&sun, &o).lights,
+        tilted.extract(&sun, &o).lights,
         plain.extract(&sun, &o).lights,
     );
     let brightest = (0..without.len())
@@ -1176,10 +1228,13 @@ fn the_tilt_takes_the_point_lights_excess_off_the_floor() {
 fn the_tilt_raises_lights_where_the_floor_falls_short() {
     let sun = hard_sky("sky-low-clear");
     let o = opts(16, Domain::Sphere, Method::Voronoi);
-    let mut plain = Extractor::new();
+    // The tilt alone, as above.
+    let (mut plain, mut tilted) = (Extractor::new(), Extractor::new());
     plain.set_tilt(false);
+    plain.set_core_azimuth(false);
+    tilted.set_core_azimuth(false);
     let without = plain.extract(&sun, &o).lights;
-    let with = Extractor::new().extract(&sun, &o).lights;
+    let with = tilted.extract(&sun, &o).lights;
     let (ew, eo) = (floor_excess(&sun, &with), floor_excess(&sun, &without));
     let reference = IrradianceReference::from_map(&sun, Domain::Sphere);
     let (dw, dn) = (
