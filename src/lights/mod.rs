@@ -372,6 +372,14 @@ fn other_starts(n: usize) -> &'static [f32] {
 const STEPS_FACTOR: usize = 2;
 const STEPS_MAX_LIGHTS: usize = 128;
 
+/// A single map of more lights than this splits its brightest cell (ALGORITHMS.md §4.2,
+/// "Split"). At 65–128 lights the split's second light cut a 60° sun along the domain's texels
+/// into two or three lights whose discs left its penumbra lopsided: 4 of 72 synthetic skies over
+/// median cut's shadowed error at 128 lights (worst 1.48 ×), none without it; turned 37°, 3 → 2
+/// (worst 1.21 → 1.25 ×); on the 13 maps and the 18 held out, each turned four ways, 1 → 0
+/// (EVALUATION.md, "The split from 129 lights").
+const SPLIT_ABOVE_LIGHTS: usize = 128;
+
 /// The diffuse error that decides between starts is estimated from the map binned into
 /// `CHECK_GRID`² emitters (first moments kept, so the error is second order in the bin size) at
 /// `CHECK_NORMALS` Fibonacci normals: the irradiance is smooth, and the starts it tells apart
@@ -1238,7 +1246,7 @@ impl Extractor {
             }
             self.seeds = best.1;
         }
-        if n > SWAP_MAX_LIGHTS && self.swap_rounds > 0 {
+        if n > SPLIT_ABOVE_LIGHTS && self.swap_rounds > 0 {
             self.seed_split(image, coarse, &first);
         }
         let lights = self.assign_spherical_once(image, false);
@@ -1538,7 +1546,7 @@ impl Extractor {
         weakest.1
     }
 
-    /// The split of a single map of more than [`SWAP_MAX_LIGHTS`] lights (ALGORITHMS.md §4.2,
+    /// The split of a single map of more than [`SPLIT_ABOVE_LIGHTS`] lights (ALGORITHMS.md §4.2,
     /// "Split"), folded into the final assignment: from the last Lloyd step's cells (`lights`, on
     /// the half-resolution square when `coarse`), the light cheapest to merge is re-seeded at the
     /// full-resolution texel farthest from the centroid of the brightest cell. Point lights err
