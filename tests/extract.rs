@@ -774,18 +774,7 @@ fn far_sky_in_a_suns_cell_does_not_widen_its_disc() {
 /// and its shadow with it. The turn keeps the elevation, so the floor it gives is unchanged.
 #[test]
 fn a_suns_light_lies_on_the_suns_azimuth() {
-    use vemlight::sky::{SyntheticConfig, SyntheticSky};
-    let mut sky = SyntheticSky::new(SyntheticConfig {
-        width: 1024,
-        height: 512,
-        start_elevation_deg: 60.0,
-        sun_speed_deg_per_s: 0.0,
-        turbidity: 9.0,
-        clouds: 0.3,
-        cloud_drift_deg_per_s: 0.0,
-        switch_light: None,
-        ..SyntheticConfig::default()
-    });
+    let mut sky = vemlight::eval::scenes::still_sky_model(1024, 60.0, 9.0, 0.3);
     let map = sky.render(0.0);
     let sun = sky.sun_direction(0.0);
     // The angle between two directions' azimuths, as an arc at the sun's elevation (degrees).

@@ -213,6 +213,16 @@ pub fn hard_skies(width: usize) -> Vec<(String, EnvMap)> {
 /// The built-in sky (Hosek-Wilkie with a real-size sun) at one instant, `width` × `width`/2: the sun
 /// `elevation` degrees up, the given turbidity and cloud cover, nothing moving.
 pub fn still_sky(width: usize, elevation: f64, turbidity: f64, clouds: f64) -> EnvMap {
+    still_sky_model(width, elevation, turbidity, clouds).render(0.0)
+}
+
+/// The sky model behind [`still_sky`] (render it at t = 0; `sun_direction(0.0)` is its sun).
+pub fn still_sky_model(
+    width: usize,
+    elevation: f64,
+    turbidity: f64,
+    clouds: f64,
+) -> crate::sky::SyntheticSky {
     use crate::sky::{SyntheticConfig, SyntheticSky};
     SyntheticSky::new(SyntheticConfig {
         width,
@@ -225,7 +235,6 @@ pub fn still_sky(width: usize, elevation: f64, turbidity: f64, clouds: f64) -> E
         switch_light: None,
         ..SyntheticConfig::default()
     })
-    .render(0.0)
 }
 
 /// A room lit by a window and a lamp: dim walls, a brighter floor patch, a window of bright

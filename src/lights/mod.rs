@@ -722,6 +722,15 @@ impl CellAccum {
         core
     }
 
+    /// Whether the cell's core is compact in it: its spread 1 − |M|/P under [`TILT_CORE_SHARE`]
+    /// of the whole cell's (a sun in its glare, a lamp), which the tilt leaves alone and the core
+    /// azimuth turns (ALGORITHMS.md §4.2). False for an empty cell or core.
+    fn core_is_compact(&self) -> bool {
+        let spread = |p: f64, m: DVec3| 1.0 - m.length() / p;
+        spread(self.core_lum, self.core_moment)
+            < TILT_CORE_SHARE * spread(self.lum, self.weighted_dir)
+    }
+
     /// Whether the cell could spare a texel to a light without energy.
     fn can_donate(&self) -> bool {
         self.lum > 0.0 && self.texels >= 2
@@ -1321,10 +1330,7 @@ impl Extractor {
             if a.lum <= 0.0 || l.to_light[1] <= 0.0 {
                 continue;
             }
-            let spread = |p: f64, m: DVec3| 1.0 - m.length() / p;
-            *m = a.core_lum > 0.0
-                && spread(a.core_lum, a.core_moment)
-                    >= TILT_CORE_SHARE * spread(a.lum, a.weighted_dir);
+            *m = a.core_lum > 0.0 && !a.core_is_compact();
             if !*m {
                 floor += l.luminance() * (l.to_light[1] as f64 - a.weighted_dir.y / a.lum);
             }
@@ -1389,11 +1395,8 @@ impl Extractor {
         for k in order {
             let (a, before) = (&self.accum[k], lights[k]);
             let y = before.to_light[1] as f64;
-            let spread = |p: f64, m: DVec3| 1.0 - m.length() / p;
             // The tilt's compact core (it leaves these alone), holding most of its cell.
-            let compact = a.core_lum >= CORE_AZIMUTH_MIN_SHARE * a.lum
-                && spread(a.core_lum, a.core_moment)
-                    < TILT_CORE_SHARE * spread(a.lum, a.weighted_dir);
+            let compact = a.core_lum >= CORE_AZIMUTH_MIN_SHARE * a.lum && a.core_is_compact();
             if !(compact && y > 0.0) {
                 continue;
             }
