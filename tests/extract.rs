@@ -806,6 +806,59 @@ fn a_suns_light_lies_on_the_suns_azimuth() {
     );
 }
 
+/// ALGORITHMS.md §12, "Core aside": a 35° sun through haze and cloud, turned 37° about the
+/// vertical, at 16 lights. Its cell holds 7 % of its light in sky spread over tens of degrees,
+/// which pulls the cell's centroid, and a light there, farther off the sun than the sun's core is
+/// wide; the core split off gives the sun a light of its own within the sun's disc, and the
+/// energy is kept.
+#[test]
+fn a_sun_aside_of_its_cells_centroid_gets_a_light_of_its_own() {
+    let still = vemlight::eval::scenes::still_sky_model(1024, 35.0, 9.0, 0.7).render(0.0);
+    let turn = glam::DQuat::from_rotation_y(37f64.to_radians());
+    let map =
+        vemlight::eval::scenes::LatLongDirs::new(still.width, still.height).rotated(&still, turn);
+    // The sun as the map draws it: the centroid of the pixels of at least a quarter of the
+    // brightest (the sun's disc, 0.27° in radius).
+    let peak = map
+        .pixels
+        .iter()
+        .map(|&p| EnvMap::luminance(p))
+        .fold(0.0, f32::max);
+    let mut sun = DVec3::ZERO;
+    for j in 0..map.height {
+        for i in 0..map.width {
+            let y = EnvMap::luminance(map.pixels[j * map.width + i]);
+            if y >= 0.25 * peak {
+                let (d, sr) = map.projection.pixel(i, j, map.width, map.height).unwrap();
+                sun += d * (f64::from(y) * sr);
+            }
+        }
+    }
+    let sun = sun.normalize();
+    let lights = |split: bool| {
+        let mut ex = Extractor::new();
+        ex.set_core_split(split);
+        ex.extract(&map, &opts(16, Domain::Sphere, Method::Voronoi))
+            .lights
+    };
+    let (split, whole) = (lights(true), lights(false));
+    let off = |l: &Light| l.dir().angle_between(sun).to_degrees();
+    let (near, centroid) = (off(brightest(&split)), off(brightest(&whole)));
+    eprintln!("the sun's light {near:.3}° off the sun, {centroid:.3}° at its cell's centroid");
+    assert!(
+        near < 0.27 && centroid > 0.36,
+        "the sun's light is {near:.3}° off the sun with the split, {centroid:.3}° without"
+    );
+    assert_eq!(split.len(), 16);
+    let (a, b) = (total_irradiance(&split), total_irradiance(&whole));
+    for c in 0..3 {
+        assert!(
+            (a[c] - b[c]).abs() <= 1e-4 * b[c],
+            "energy {a:?} with the split, {b:?} without"
+        );
+    }
+}
+
 /// ALGORITHMS.md §12, "Not across the horizon": no light's disc crosses the horizon, on every
 /// map and on a sky that is brightest in a wide band just above it (where a cell's core spreads
 /// over tens of degrees and the unclamped disc would reach below the horizon). That a light high
