@@ -37,6 +37,9 @@ struct Light {
     to_light: vec4<f32>,
     // rgb: radiance × sr.
     irradiance: vec4<f32>,
+    // A two-part extent (ALGORITHMS.md §12): x = the core's share of the light (0: none, draw the
+    // one disc of to_light.w), y = the core's disc, z = the rest's, radians.
+    extent: vec4<f32>,
 };
 
 struct Group {
@@ -187,9 +190,18 @@ fn fs_light(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
         }
         // Only lights that reach the surface pay for a shadow lookup.
         if any(sum > vec3<f32>(0.0)) {
-            // The group's penumbra is its first (brightest-keyed) member's.
-            let radius = u_lights.items[info.y].to_light.w;
-            radiance += sum * visibility(gi, info.x, world, n, radius);
+            // The group's penumbra is its first (brightest-keyed) member's: one disc, or two
+            // about the same direction weighed by their shares (two lookups of one map).
+            let first = u_lights.items[info.y];
+            var seen: f32;
+            if first.extent.x > 0.0 {
+                let core = visibility(gi, info.x, world, n, first.extent.y);
+                let rest = visibility(gi, info.x, world, n, first.extent.z);
+                seen = mix(rest, core, first.extent.x);
+            } else {
+                seen = visibility(gi, info.x, world, n, first.to_light.w);
+            }
+            radiance += sum * seen;
         }
     }
     return vec4<f32>(radiance * u_globals.params.x, 1.0);

@@ -10,7 +10,7 @@
 //! never overshoots); a Hamming-windowed sinc is available for a sharper cut-off, with its negative
 //! taps clamped away from the output power.
 
-use crate::lights::Light;
+use crate::lights::{Light, LightExtent};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
@@ -220,6 +220,12 @@ impl TemporalFilter {
                 let mut irr = [0.0f64; 3];
                 let mut sr = 0.0f64;
                 let mut radius = 0.0f64;
+                // The two-part extent is filtered part by part where every frame in the window
+                // has one; else the light is one disc until they all do again.
+                let mut extent = hist
+                    .iter()
+                    .all(|p| p.extent.is_some())
+                    .then_some([0.0f64; 3]);
                 for (h, past) in taps.iter().zip(hist.iter().rev()) {
                     let w = (h / norm) as f32;
                     dir += Vec3::from_array(past.to_light) * w;
@@ -228,6 +234,11 @@ impl TemporalFilter {
                     }
                     sr += h / norm * past.solid_angle as f64;
                     radius += h / norm * past.angular_radius as f64;
+                    if let (Some(sum), Some(e)) = (extent.as_mut(), past.extent) {
+                        sum[0] += h / norm * e.core_share as f64;
+                        sum[1] += h / norm * e.core_radius as f64;
+                        sum[2] += h / norm * e.rest_radius as f64;
+                    }
                 }
                 Light {
                     id: l.id,
@@ -239,6 +250,11 @@ impl TemporalFilter {
                     irradiance: irr.map(|v| v.max(0.0) as f32),
                     solid_angle: sr.max(0.0) as f32,
                     angular_radius: radius.max(0.0) as f32,
+                    extent: extent.map(|[share, core, rest]| LightExtent {
+                        core_share: share.clamp(0.0, 1.0) as f32,
+                        core_radius: core.max(0.0) as f32,
+                        rest_radius: rest.max(0.0) as f32,
+                    }),
                     shadowed: None,
                 }
             })
@@ -257,6 +273,7 @@ mod tests {
             irradiance: [power; 3],
             solid_angle: 0.1,
             angular_radius: 0.0,
+            extent: None,
             shadowed: None,
         }
     }
@@ -356,5 +373,39 @@ mod tests {
         let out = g.filter(&ls);
         assert_eq!(out, ls.to_vec(), "first frame passes unchanged");
         assert!(out.iter().enumerate().all(|(k, l)| l.id == k as u32));
+    }
+
+    /// A light's two-part extent is filtered part by part like its radius: a constant extent
+    /// passes unchanged, a step in the core's share settles on the new share, and a frame
+    /// without one in the window leaves the light one disc until it has left the window.
+    #[test]
+    fn a_two_part_extent_is_filtered_part_by_part() {
+        let spec = FilterSpec::default();
+        let m = spec.kernel().len();
+        let mut f = TemporalFilter::new(&spec);
+        let with = |share: f32| Light {
+            extent: Some(LightExtent {
+                core_share: share,
+                core_radius: 0.01,
+                rest_radius: 0.1,
+            }),
+            ..light(0, Vec3::Y, 1.0)
+        };
+        for _ in 0..m {
+            let out = f.filter(&[with(0.4)])[0]
+                .extent
+                .expect("every frame has one");
+            assert!((out.core_share - 0.4).abs() < 1e-6 && (out.rest_radius - 0.1).abs() < 1e-7);
+        }
+        let shares: Vec<f32> = (0..m)
+            .map(|_| f.filter(&[with(0.8)])[0].extent.expect("extent").core_share)
+            .collect();
+        assert!(shares.windows(2).all(|w| w[1] >= w[0]), "{shares:?}");
+        assert!((shares[m - 1] - 0.8).abs() < 1e-5, "{shares:?}");
+        assert_eq!(f.filter(&[light(0, Vec3::Y, 1.0)])[0].extent, None);
+        for k in 1..=m {
+            let out = f.filter(&[with(0.8)])[0].extent;
+            assert_eq!(out.is_some(), k == m, "frame {k} after the one disc");
+        }
     }
 }

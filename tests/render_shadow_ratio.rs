@@ -6,7 +6,7 @@
 
 use glam::Vec3;
 use std::f32::consts::PI;
-use vemlight::lights::Light;
+use vemlight::lights::{Light, LightExtent};
 use vemlight::render::gpu::Gpu;
 use vemlight::render::overlay::Status;
 use vemlight::render::scene::{Camera, Material, Scene};
@@ -48,6 +48,7 @@ fn light(id: u32, to_light: Vec3, e: f32) -> Light {
         irradiance: [e; 3],
         solid_angle: 0.01,
         angular_radius: 0.0,
+        extent: None,
         shadowed: None,
     }
 }
@@ -205,6 +206,56 @@ fn a_light_with_an_angular_radius_casts_a_penumbra() {
         soft[2] <= 0.9 * open,
         "inside the penumbra, outside the slab: {}",
         soft[2]
+    );
+}
+
+/// ALGORITHMS.md §12, "Two-part extent", in the viewer: a light with a compact core and a wider
+/// rest draws the core's share of the core disc's shadow plus the rest of the rest disc's, so at
+/// every point across the slab's edge the render is the two one-disc renders mixed by the share
+/// (the shading is linear in visibility), and not what its one `angular_radius` disc draws.
+#[test]
+fn a_two_part_extent_draws_its_two_discs_weighed_by_share() {
+    let e = 3.0;
+    let open = ALBEDO / PI * e;
+    let xs = [0.2f32, 0.3, 0.4, 0.44, 0.48, 0.52, 0.56, 0.62, 0.7, 0.9];
+    let points: Vec<Vec3> = xs.iter().map(|&x| Vec3::new(x, 0.0, 0.0)).collect();
+    let (core_radius, rest_radius, share) = (0.5f32.to_radians(), 8f32.to_radians(), 0.6);
+    let one_disc = |radius: f32| {
+        let mut l = light(0, Vec3::Y, e);
+        l.angular_radius = radius;
+        raw_radiance_at(&[l], &points)
+    };
+    let (core, rest, median) = (
+        one_disc(core_radius),
+        one_disc(rest_radius),
+        one_disc(3f32.to_radians()),
+    );
+    let mut two = light(0, Vec3::Y, e);
+    two.angular_radius = 3f32.to_radians();
+    two.extent = Some(LightExtent {
+        core_share: share,
+        core_radius,
+        rest_radius,
+    });
+    let drawn = raw_radiance_at(&[two], &points);
+    println!("core {core:?}\nrest {rest:?}\none disc {median:?}\ntwo-part {drawn:?}");
+    for (i, x) in xs.iter().enumerate() {
+        let expected = share * core[i] + (1.0 - share) * rest[i];
+        assert!(
+            (drawn[i] - expected).abs() <= TOLERANCE * open,
+            "x = {x}: two-part {} vs {share}·core + {}·rest = {expected}",
+            drawn[i],
+            1.0 - share
+        );
+    }
+    // Where the core's hard edge and the rest's soft one differ, so does the two-part light
+    // from its one disc.
+    let apart = (0..xs.len())
+        .map(|i| (drawn[i] - median[i]).abs())
+        .fold(0.0f32, f32::max);
+    assert!(
+        apart >= 0.05 * open,
+        "two-part vs one disc: at most {apart}"
     );
 }
 

@@ -138,6 +138,7 @@ mod tests {
             irradiance: [y; 3],
             solid_angle: 0.0,
             angular_radius: radius,
+            extent: None,
             shadowed: None,
         }
     }

@@ -205,6 +205,7 @@ mod tests {
             irradiance: [lum; 3],
             solid_angle: 0.01,
             angular_radius: 0.0,
+            extent: None,
             shadowed: None,
         }
     }

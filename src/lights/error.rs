@@ -362,6 +362,7 @@ mod tests {
             irradiance: [y; 3],
             solid_angle: 0.0,
             angular_radius: 0.0,
+            extent: None,
             shadowed: None,
         }
     }

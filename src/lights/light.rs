@@ -22,6 +22,12 @@ pub struct Light {
     /// needs; 0 for a point. Older documents without it read as 0.
     #[serde(default)]
     pub angular_radius: f32,
+    /// Where one disc draws a source poorly (a sun in a wider glow): the light's luminance as a
+    /// compact core and a wider rest, both discs about `to_light` (ALGORITHMS.md §12, "Two-part
+    /// extent"). A client that draws one disc uses `angular_radius`; absent where one disc is
+    /// enough.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extent: Option<LightExtent>,
     /// With a client's shadow budget (`shadowed=K`, see [`super::budget`]): whether this light is
     /// one of the K worth a shadow map. Absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -48,6 +54,65 @@ impl Light {
     pub fn moment(&self) -> DVec3 {
         let r = self.angular_radius as f64;
         self.dir() * self.luminance() * (1.0 - 0.25 * r * r).max(0.0)
+    }
+}
+
+/// A light's two-part extent (ALGORITHMS.md §12, "Two-part extent"): a share of its luminance
+/// in a compact core's disc and the rest in a wider disc, both about the light's direction. Its
+/// shadow is the two discs' visibilities weighed by their shares: the hard shadow of a sun and
+/// the soft one of its glow, which one disc of the half-energy radius draws as neither.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LightExtent {
+    /// The core's share of the light's luminance, in (0, 1).
+    pub core_share: f32,
+    /// Radians: the core's uniform disc of the same RMS spread.
+    pub core_radius: f32,
+    /// Radians: the uniform disc with the rest's half-energy radius.
+    pub rest_radius: f32,
+}
+
+impl LightExtent {
+    /// The smallest share either part must hold, and how much wider than the core the rest must
+    /// be, for the two discs to draw a shadow one disc does not: under these the light is one
+    /// disc (no more model than the source needs).
+    pub const MIN_SHARE: f64 = 0.01;
+    pub const MIN_WIDER: f64 = 4.0;
+
+    /// The two-part extent of a cell whose core has (P, |M|) = `core` and whose rest lies in
+    /// `rest` (as [`core_rest_radius`] reads them); `None` where one disc is enough.
+    pub fn of_core_and_rest(core: (f64, f64), rest: &[f32]) -> Option<LightExtent> {
+        let (pc, mc) = core;
+        let pr: f64 = rest.iter().map(|&y| y.max(0.0) as f64).sum();
+        if !(pc > 0.0 && pr > 0.0 && pc.is_finite() && mc.is_finite() && pr.is_finite()) {
+            return None;
+        }
+        let core_share = pc / (pc + pr);
+        let core_radius = angular_radius(pc, mc);
+        let rest_radius = core_rest_radius((0.0, 0.0), rest);
+        let two_parts = (Self::MIN_SHARE..=1.0 - Self::MIN_SHARE).contains(&core_share)
+            && f64::from(rest_radius) >= Self::MIN_WIDER * f64::from(core_radius);
+        two_parts.then_some(LightExtent {
+            core_share: core_share as f32,
+            core_radius,
+            rest_radius,
+        })
+    }
+
+    /// Both discs at most `max_radius` (the horizon, ALGORITHMS.md §12); `None` where the rest's
+    /// disc is then no longer [`Self::MIN_WIDER`] times the core's (one disc draws it).
+    pub fn clamped(self, max_radius: f32) -> Option<LightExtent> {
+        let e = LightExtent {
+            core_radius: self.core_radius.min(max_radius),
+            rest_radius: self.rest_radius.min(max_radius),
+            ..self
+        };
+        (f64::from(e.rest_radius) >= Self::MIN_WIDER * f64::from(e.core_radius)).then_some(e)
+    }
+
+    /// The two discs, (share, radius) each.
+    pub fn parts(&self) -> [(f64, f32); 2] {
+        let s = f64::from(self.core_share).clamp(0.0, 1.0);
+        [(s, self.core_radius), (1.0 - s, self.rest_radius)]
     }
 }
 
@@ -382,5 +447,42 @@ mod tests {
                 rest[0]
             );
         }
+    }
+
+    /// ALGORITHMS.md §12, "Two-part extent": a core of 40 % on a 0.5° disc in a uniform 5° cap
+    /// gives back the core's share and radius and the cap's radius (a uniform disc's √2·θ₅₀ is its
+    /// radius); one disc stands for a lone core, a core with a sliver of rest, and a rest only three
+    /// times as wide as the core (and a horizon clamp that leaves it so).
+    #[test]
+    fn a_core_in_a_wider_rest_gets_a_two_part_extent_and_no_more() {
+        let (rc, rh) = (0.5f64.to_radians(), 5f64.to_radians());
+        let extent = |share: f64, rh: f64| {
+            let mut bins = vec![0.0; ANGLE_BINS];
+            add_even(&mut bins, 1.0 - share, 0.0, x_of(rh));
+            LightExtent::of_core_and_rest(disc(share, rc), &bins)
+        };
+        let e = extent(0.4, rh).expect("a core in a wider rest");
+        assert!((e.core_share as f64 - 0.4).abs() < 1e-6, "{e:?}");
+        assert!((e.core_radius as f64 - rc).abs() < 1e-3 * rc, "{e:?}");
+        assert!((e.rest_radius as f64 - rh).abs() < 0.02 * rh, "{e:?}");
+        let [(s0, r0), (s1, r1)] = e.parts();
+        assert!((s0 + s1 - 1.0).abs() < 1e-12 && r0 == e.core_radius && r1 == e.rest_radius);
+        assert_eq!(extent(1.0, rh), None, "a lone core");
+        assert_eq!(extent(0.995, rh), None, "a sliver of rest");
+        assert_eq!(
+            extent(0.4, 3.0 * rc),
+            None,
+            "a rest three times as wide as the core"
+        );
+        let clamped = e
+            .clamped(3f32.to_radians())
+            .expect("the rest still 6 × the core");
+        assert_eq!(clamped.core_radius, e.core_radius);
+        assert_eq!(clamped.rest_radius, 3f32.to_radians());
+        assert_eq!(
+            e.clamped(1f32.to_radians()),
+            None,
+            "the rest clamped to 2 × the core"
+        );
     }
 }

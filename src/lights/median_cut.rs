@@ -241,6 +241,7 @@ fn cut(grid: &LatLongGrid, sat: &mut Vec<f64>, n: usize) -> Vec<Light> {
                 irradiance: rgb.map(|v| v as f32),
                 solid_angle: sr as f32,
                 angular_radius: super::light::angular_radius(lum, dir.length()),
+                extent: None,
                 shadowed: None,
             }
         })

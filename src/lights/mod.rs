@@ -26,8 +26,8 @@ pub mod vmlps;
 
 use light::{ANGLE_BINS, angle_bin};
 pub use light::{
-    Light, PRIMARY_CLUSTER_DEG, PrimaryLight, angular_radius, core_rest_radius, horizon_gap,
-    primary_light, total_irradiance,
+    Light, LightExtent, PRIMARY_CLUSTER_DEG, PrimaryLight, angular_radius, core_rest_radius,
+    horizon_gap, primary_light, total_irradiance,
 };
 
 use crate::envmap::EnvMap;
@@ -1110,7 +1110,9 @@ impl Extractor {
             let mut lights = self.assign_spherical(image, method == Method::Voronoi);
             // A cell's disc stays on its side of the horizon (ALGORITHMS.md §12).
             for l in &mut lights {
-                l.angular_radius = l.angular_radius.min(horizon_gap(l.to_light));
+                let gap = horizon_gap(l.to_light);
+                l.angular_radius = l.angular_radius.min(gap);
+                l.extent = l.extent.and_then(|e| e.clamped(gap));
             }
             lights
         };
@@ -1545,6 +1547,7 @@ impl Extractor {
             irradiance: (a.core_energy * texel_sr).as_vec3().to_array(),
             solid_angle: core_sr,
             angular_radius: angular_radius(a.core_lum, a.core_moment.length()),
+            extent: None,
             ..whole
         };
         lights.push(Light {
@@ -1553,6 +1556,7 @@ impl Extractor {
             irradiance: ((a.energy - a.core_energy) * texel_sr).as_vec3().to_array(),
             solid_angle: whole.solid_angle - core_sr,
             angular_radius: self.rest_radius(k),
+            extent: None,
             ..whole
         });
     }
@@ -1987,11 +1991,15 @@ impl Extractor {
                 // §12). Else the whole cell's spread about the light's direction (the paper
                 // variant's lights sit at their seeds): P − M·d.
                 let rest = self.rest_bins.get(k * ANGLE_BINS..(k + 1) * ANGLE_BINS);
-                let radius = if let Some(rest) = rest.filter(|_| a.core_lum > 0.0) {
-                    core_rest_radius((a.core_lum, a.core_moment.length()), rest)
+                let (radius, extent) = if let Some(rest) = rest.filter(|_| a.core_lum > 0.0) {
+                    let core = (a.core_lum, a.core_moment.length());
+                    (
+                        core_rest_radius(core, rest),
+                        LightExtent::of_core_and_rest(core, rest),
+                    )
                 } else {
                     let along = a.weighted_dir.dot(d.as_dvec3().normalize_or_zero());
-                    angular_radius(a.lum, along)
+                    (angular_radius(a.lum, along), None)
                 };
                 Light {
                     id: k as u32,
@@ -1999,6 +2007,7 @@ impl Extractor {
                     irradiance: (a.energy * texel_sr).as_vec3().to_array(),
                     solid_angle: (a.texels as f64 * texel_sr) as f32,
                     angular_radius: radius,
+                    extent,
                     shadowed: None,
                 }
             })

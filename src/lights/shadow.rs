@@ -170,7 +170,8 @@ impl ShadowReference {
     }
 }
 
-/// E_N at every probe of `scene`: each light's luminance × max(0, l_y) × its disc-averaged visibility.
+/// E_N at every probe of `scene`: each light's luminance × max(0, l_y) × its disc-averaged
+/// visibility; a light with a two-part extent, each part's share of that over its own disc.
 pub fn lights_irradiance(scene: &ShadowScene, lights: &[Light]) -> Vec<f64> {
     struct Rays {
         dirs: Vec<DVec3>,
@@ -181,12 +182,20 @@ pub fn lights_irradiance(scene: &ShadowScene, lights: &[Light]) -> Vec<f64> {
         /// Rays above the horizon: the open count where no occluder can block one.
         up: usize,
     }
-    let rays: Vec<Rays> = lights
+    let parts = lights
         .iter()
         .filter(|l| l.to_light[1] > 0.0 && l.luminance() > 0.0)
-        .map(|l| {
+        .flat_map(|l| {
+            let [core, rest] = match l.extent {
+                Some(e) => e.parts().map(Some),
+                None => [Some((1.0, l.angular_radius)), None],
+            };
+            [core, rest].into_iter().flatten().map(move |p| (l, p))
+        });
+    let rays: Vec<Rays> = parts
+        .map(|(l, (share, radius))| {
             let axis = l.dir();
-            let dirs = disc_rays(axis, l.angular_radius as f64);
+            let dirs = disc_rays(axis, radius as f64);
             let spread = dirs
                 .iter()
                 .map(|r| r.dot(axis).clamp(-1.0, 1.0).acos())
@@ -194,7 +203,7 @@ pub fn lights_irradiance(scene: &ShadowScene, lights: &[Light]) -> Vec<f64> {
             let up = dirs.iter().filter(|r| r.y > 0.0).count();
             Rays {
                 dirs,
-                weight: l.luminance() * axis.y,
+                weight: share * l.luminance() * axis.y,
                 axis,
                 spread,
                 up,

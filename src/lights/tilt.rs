@@ -175,6 +175,7 @@ mod tests {
                     irradiance: [1.0; 3],
                     solid_angle: 1.0,
                     angular_radius: 0.3,
+                    extent: None,
                     shadowed: None,
                 }
             })

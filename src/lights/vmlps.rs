@@ -137,6 +137,7 @@ impl Vmlps {
                     irradiance: rgb.map(|v| v as f32),
                     solid_angle: sr as f32,
                     angular_radius: super::light::angular_radius(p, m.length()),
+                    extent: None,
                     shadowed: None,
                 }
             })

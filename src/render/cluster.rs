@@ -293,6 +293,7 @@ mod tests {
             irradiance: [power; 3],
             solid_angle: 0.01,
             angular_radius: 0.0,
+            extent: None,
             shadowed: None,
         }
     }

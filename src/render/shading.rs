@@ -61,6 +61,7 @@ struct GlobalsRaw {
 pub struct LightRaw {
     to_light: [f32; 4],
     irradiance: [f32; 4],
+    extent: [f32; 4],
 }
 
 impl LightRaw {
@@ -71,6 +72,16 @@ impl LightRaw {
             // w: the light's angular radius (ALGORITHMS.md §12), for its penumbra.
             to_light: [x, y, z, l.angular_radius.max(0.0)],
             irradiance: [r, g, b, 0.0],
+            // A two-part extent (ALGORITHMS.md §12): core share, core radius, rest radius; a
+            // share of 0 draws the one disc of `to_light.w`.
+            extent: l.extent.map_or([0.0; 4], |e| {
+                [
+                    e.core_share.clamp(0.0, 1.0),
+                    e.core_radius.max(0.0),
+                    e.rest_radius.max(0.0),
+                    0.0,
+                ]
+            }),
         }
     }
 }
@@ -747,6 +758,7 @@ mod tests {
             irradiance: [1.0; 3],
             solid_angle: 0.1,
             angular_radius: 0.0,
+            extent: None,
             shadowed: None,
         };
         // 5° below the horizon: reaches normals tilted 10° toward it. 20° below: cannot.

@@ -40,6 +40,7 @@ pub fn prefix_with_energy(all: &[Light], n: usize, out: &mut Vec<Light>) {
         // The merged region's spread (ALGORITHMS.md §12), from the summed moments.
         nearest.angular_radius =
             crate::lights::angular_radius(nearest.luminance(), moment.length());
+        nearest.extent = None;
     }
     out.truncate(n);
     keep_shadow_budget(all, out);
@@ -172,6 +173,7 @@ mod tests {
             irradiance: [e; 3],
             solid_angle: 0.5,
             angular_radius: 0.0,
+            extent: None,
             shadowed: None,
         }
     }
