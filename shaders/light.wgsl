@@ -190,11 +190,13 @@ fn fs_light(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
         }
         // Only lights that reach the surface pay for a shadow lookup.
         if any(sum > vec3<f32>(0.0)) {
-            // The group's penumbra is its first (brightest-keyed) member's: one disc, or two
-            // about the same direction weighed by their shares (two lookups of one map).
+            // The group's penumbra is its first (brightest-keyed) member's disc; a light with a
+            // map of its own and a two-part extent draws its two discs about the same direction,
+            // weighed by their shares (two lookups of one map). A group keeps one disc: its
+            // first member's glow would blur its brighter members' shadows.
             let first = u_lights.items[info.y];
             var seen: f32;
-            if first.extent.x > 0.0 {
+            if first.extent.x > 0.0 && info.z == 1u {
                 let core = visibility(gi, info.x, world, n, first.extent.y);
                 let rest = visibility(gi, info.x, world, n, first.extent.z);
                 seen = mix(rest, core, first.extent.x);
