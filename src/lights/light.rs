@@ -86,27 +86,32 @@ impl LightExtent {
         if !(pc > 0.0 && pr > 0.0 && pc.is_finite() && mc.is_finite() && pr.is_finite()) {
             return None;
         }
-        let core_share = pc / (pc + pr);
-        let core_radius = angular_radius(pc, mc);
-        let rest_radius = core_rest_radius((0.0, 0.0), rest);
-        let two_parts = (Self::MIN_SHARE..=1.0 - Self::MIN_SHARE).contains(&core_share)
-            && f64::from(rest_radius) >= Self::MIN_WIDER * f64::from(core_radius);
-        two_parts.then_some(LightExtent {
-            core_share: core_share as f32,
-            core_radius,
-            rest_radius,
-        })
+        LightExtent {
+            core_share: (pc / (pc + pr)) as f32,
+            core_radius: angular_radius(pc, mc),
+            rest_radius: core_rest_radius((0.0, 0.0), rest),
+        }
+        .worth_two_discs()
     }
 
     /// Both discs at most `max_radius` (the horizon, ALGORITHMS.md §12); `None` where the rest's
     /// disc is then no longer [`Self::MIN_WIDER`] times the core's (one disc draws it).
     pub fn clamped(self, max_radius: f32) -> Option<LightExtent> {
-        let e = LightExtent {
+        LightExtent {
             core_radius: self.core_radius.min(max_radius),
             rest_radius: self.rest_radius.min(max_radius),
             ..self
-        };
-        (f64::from(e.rest_radius) >= Self::MIN_WIDER * f64::from(e.core_radius)).then_some(e)
+        }
+        .worth_two_discs()
+    }
+
+    /// `self` where its two discs draw a shadow one disc does not ([`Self::MIN_SHARE`],
+    /// [`Self::MIN_WIDER`]), else `None`.
+    fn worth_two_discs(self) -> Option<LightExtent> {
+        let share = f64::from(self.core_share);
+        let two = (Self::MIN_SHARE..=1.0 - Self::MIN_SHARE).contains(&share)
+            && f64::from(self.rest_radius) >= Self::MIN_WIDER * f64::from(self.core_radius);
+        two.then_some(self)
     }
 
     /// The two discs, (share, radius) each.
