@@ -220,12 +220,13 @@ impl TemporalFilter {
                 let mut irr = [0.0f64; 3];
                 let mut sr = 0.0f64;
                 let mut radius = 0.0f64;
-                // The two-part extent is filtered part by part where every frame in the window
-                // has one; else the light is one disc until they all do again.
-                let mut extent = hist
-                    .iter()
-                    .all(|p| p.extent.is_some())
-                    .then_some([0.0f64; 3]);
+                // The two-part extent is filtered as the mixture of the window's discs: the
+                // share is the mean share, each disc's radius the mean over the luminance it
+                // holds. A frame without an extent is one disc of its `angular_radius`, counted
+                // whole with the part whose radius it is nearer (in ratio), so a light whose
+                // extent comes or goes fades between two discs and one instead of switching.
+                let parts = ExtentParts::of_window(hist.iter());
+                let mut mixture = parts.map(|_| [0.0f64; 4]);
                 for (h, past) in taps.iter().zip(hist.iter().rev()) {
                     let w = (h / norm) as f32;
                     dir += Vec3::from_array(past.to_light) * w;
@@ -234,10 +235,8 @@ impl TemporalFilter {
                     }
                     sr += h / norm * past.solid_angle as f64;
                     radius += h / norm * past.angular_radius as f64;
-                    if let (Some(sum), Some(e)) = (extent.as_mut(), past.extent) {
-                        sum[0] += h / norm * e.core_share as f64;
-                        sum[1] += h / norm * e.core_radius as f64;
-                        sum[2] += h / norm * e.rest_radius as f64;
+                    if let (Some(sum), Some(parts)) = (mixture.as_mut(), parts) {
+                        parts.add(past, h / norm, sum);
                     }
                 }
                 Light {
@@ -250,15 +249,77 @@ impl TemporalFilter {
                     irradiance: irr.map(|v| v.max(0.0) as f32),
                     solid_angle: sr.max(0.0) as f32,
                     angular_radius: radius.max(0.0) as f32,
-                    extent: extent.map(|[share, core, rest]| LightExtent {
-                        core_share: share.clamp(0.0, 1.0) as f32,
-                        core_radius: core.max(0.0) as f32,
-                        rest_radius: rest.max(0.0) as f32,
-                    }),
+                    extent: mixture.zip(parts).map(|(sum, parts)| parts.extent(sum)),
                     shadowed: None,
                 }
             })
             .collect()
+    }
+}
+
+/// The two parts' mean radii over the extents in a filter's window, which frames without an
+/// extent are sorted against and which stand in for a part that holds no luminance.
+#[derive(Clone, Copy)]
+struct ExtentParts {
+    core_radius: f64,
+    rest_radius: f64,
+}
+
+impl ExtentParts {
+    /// `None` where no frame in the window has an extent (the light is one disc).
+    fn of_window<'a>(window: impl Iterator<Item = &'a Light>) -> Option<ExtentParts> {
+        let (mut n, mut core, mut rest) = (0usize, 0.0f64, 0.0f64);
+        for e in window.filter_map(|l| l.extent) {
+            n += 1;
+            core += e.core_radius as f64;
+            rest += e.rest_radius as f64;
+        }
+        (n > 0).then(|| ExtentParts {
+            core_radius: core / n as f64,
+            rest_radius: rest / n as f64,
+        })
+    }
+
+    /// Adds one frame of weight `w` to `sum` = [core luminance, core luminance × radius, rest
+    /// luminance, rest luminance × radius] (as shares of the light's).
+    fn add(self, l: &Light, w: f64, sum: &mut [f64; 4]) {
+        let (core_share, core_radius, rest_radius) = match l.extent {
+            Some(e) => (
+                e.core_share as f64,
+                e.core_radius as f64,
+                e.rest_radius as f64,
+            ),
+            None => {
+                let r = l.angular_radius as f64;
+                // Nearer in ratio: r² < r_core · r_rest.
+                let core = r * r < self.core_radius * self.rest_radius;
+                (if core { 1.0 } else { 0.0 }, r, r)
+            }
+        };
+        sum[0] += w * core_share;
+        sum[1] += w * core_share * core_radius;
+        sum[2] += w * (1.0 - core_share);
+        sum[3] += w * (1.0 - core_share) * rest_radius;
+    }
+
+    fn extent(self, [core, core_r, rest, rest_r]: [f64; 4]) -> LightExtent {
+        const EMPTY: f64 = 1e-9;
+        let share = (core / (core + rest)).clamp(0.0, 1.0);
+        LightExtent {
+            core_share: if share.is_finite() { share as f32 } else { 0.0 },
+            core_radius: if core > EMPTY {
+                core_r / core
+            } else {
+                self.core_radius
+            }
+            .max(0.0) as f32,
+            rest_radius: if rest > EMPTY {
+                rest_r / rest
+            } else {
+                self.rest_radius
+            }
+            .max(0.0) as f32,
+        }
     }
 }
 
@@ -376,36 +437,116 @@ mod tests {
     }
 
     /// A light's two-part extent is filtered part by part like its radius: a constant extent
-    /// passes unchanged, a step in the core's share settles on the new share, and a frame
-    /// without one in the window leaves the light one disc until it has left the window.
+    /// passes unchanged and a step in the core's share settles on the new share.
     #[test]
     fn a_two_part_extent_is_filtered_part_by_part() {
         let spec = FilterSpec::default();
         let m = spec.kernel().len();
         let mut f = TemporalFilter::new(&spec);
-        let with = |share: f32| Light {
+        for _ in 0..m {
+            let out = f.filter(&[two_part(0.4)])[0]
+                .extent
+                .expect("every frame has one");
+            assert!((out.core_share - 0.4).abs() < 1e-6 && (out.rest_radius - 0.1).abs() < 1e-7);
+        }
+        let shares: Vec<f32> = (0..m)
+            .map(|_| {
+                f.filter(&[two_part(0.8)])[0]
+                    .extent
+                    .expect("extent")
+                    .core_share
+            })
+            .collect();
+        assert!(shares.windows(2).all(|w| w[1] >= w[0]), "{shares:?}");
+        assert!((shares[m - 1] - 0.8).abs() < 1e-5, "{shares:?}");
+    }
+
+    /// A light whose extent goes (and comes back) fades between two discs and one: the shadow
+    /// it draws across an edge changes per frame by no more than the kernel's largest tap times
+    /// the whole change (a switch would move it by the whole change at once), and the light is
+    /// one disc again once no frame in the window has an extent.
+    #[test]
+    fn an_extent_that_comes_and_goes_fades_instead_of_switching() {
+        let spec = FilterSpec::default();
+        let kernel = spec.kernel();
+        let m = kernel.len();
+        let max_tap = kernel.iter().cloned().fold(0.0, f64::max);
+        let one_disc = Light {
+            angular_radius: 0.05,
+            ..light(0, Vec3::Y, 1.0)
+        };
+        let with = Light {
+            angular_radius: 0.05,
+            ..two_part(0.6)
+        };
+        // Lit share across a straight edge at angular offsets x from the light's direction.
+        let edge = |l: &Light| -> Vec<f64> {
+            (-8..=8)
+                .map(|k| {
+                    let x = k as f64 * 0.015;
+                    match l.extent {
+                        Some(e) => {
+                            e.core_share as f64 * lit_beyond(x, e.core_radius as f64)
+                                + (1.0 - e.core_share as f64) * lit_beyond(x, e.rest_radius as f64)
+                        }
+                        None => lit_beyond(x, l.angular_radius as f64),
+                    }
+                })
+                .collect()
+        };
+        let (full_with, full_without) = (edge(&with), edge(&one_disc));
+        let whole = full_with
+            .iter()
+            .zip(&full_without)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(whole > 0.05, "the two shadows differ: {whole}");
+        let mut f = TemporalFilter::new(&spec);
+        let frames = [vec![with; m], vec![one_disc; m], vec![with; m]].concat();
+        let drawn: Vec<(Light, Vec<f64>)> = frames
+            .iter()
+            .map(|l| {
+                let out = f.filter(&[*l])[0];
+                (out, edge(&out))
+            })
+            .collect();
+        for (k, w) in drawn.windows(2).enumerate() {
+            let step = w[0].1.iter().zip(&w[1].1).map(|(a, b)| (a - b).abs());
+            let step = step.fold(0.0, f64::max);
+            assert!(
+                step <= max_tap * whole + 1e-6,
+                "frame {}: {step} of {whole}",
+                k + 1
+            );
+        }
+        assert_eq!(
+            drawn[2 * m - 1].0.extent,
+            None,
+            "one disc once the window has none"
+        );
+        assert!(drawn[m].0.extent.is_some(), "fades out, not switched off");
+        let last = &drawn[3 * m - 1].0;
+        let e = last.extent.expect("back to two discs");
+        assert!((e.core_share - 0.6).abs() < 1e-6 && (e.core_radius - 0.01).abs() < 1e-6);
+    }
+
+    fn two_part(share: f32) -> Light {
+        Light {
             extent: Some(LightExtent {
                 core_share: share,
                 core_radius: 0.01,
                 rest_radius: 0.1,
             }),
             ..light(0, Vec3::Y, 1.0)
-        };
-        for _ in 0..m {
-            let out = f.filter(&[with(0.4)])[0]
-                .extent
-                .expect("every frame has one");
-            assert!((out.core_share - 0.4).abs() < 1e-6 && (out.rest_radius - 0.1).abs() < 1e-7);
         }
-        let shares: Vec<f32> = (0..m)
-            .map(|_| f.filter(&[with(0.8)])[0].extent.expect("extent").core_share)
-            .collect();
-        assert!(shares.windows(2).all(|w| w[1] >= w[0]), "{shares:?}");
-        assert!((shares[m - 1] - 0.8).abs() < 1e-5, "{shares:?}");
-        assert_eq!(f.filter(&[light(0, Vec3::Y, 1.0)])[0].extent, None);
-        for k in 1..=m {
-            let out = f.filter(&[with(0.8)])[0].extent;
-            assert_eq!(out.is_some(), k == m, "frame {k} after the one disc");
-        }
+    }
+
+    /// The share of a uniform disc of radius `r` lying beyond a straight edge at offset `x` from
+    /// its centre (small angles: flat).
+    fn lit_beyond(x: f64, r: f64) -> f64 {
+        let d = (x / r).clamp(-1.0, 1.0);
+        // Circular segment on the far side of the chord at distance d (in radii).
+        let segment = (d.acos() - d * (1.0 - d * d).sqrt()) / std::f64::consts::PI;
+        1.0 - segment
     }
 }
