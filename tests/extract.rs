@@ -908,6 +908,43 @@ fn a_sun_aside_of_its_cells_centroid_gets_a_light_of_its_own() {
     }
 }
 
+/// ALGORITHMS.md §4.2, "Split": the model's 60° sun through haze and cloud lies on the lat-long
+/// seam, and at 256 lights the Lloyd steps cut it into two equal halves. The split leaves it so
+/// (a third light taken from one half left that half's disc lopsided, and the shadow drawn on
+/// §9's ground 1.6 × median cut's error); two lights on the sun, within a tenth of each other's
+/// energy, and the shadowed error at most median cut's.
+#[test]
+fn a_sun_already_cut_in_two_is_not_split_again() {
+    let mut sky = vemlight::eval::scenes::still_sky_model(1024, 60.0, 9.0, 0.3);
+    let map = sky.render(0.0);
+    let sun = sky.sun_direction(0.0);
+    let lights = Extractor::new()
+        .extract(&map, &opts(256, Domain::Sphere, Method::Voronoi))
+        .lights;
+    let peak = brightest(&lights).luminance();
+    let on_sun: Vec<f64> = lights
+        .iter()
+        .filter(|l| l.dir().angle_between(sun).to_degrees() < 0.6 && l.luminance() > 0.05 * peak)
+        .map(|l| l.luminance())
+        .collect();
+    assert!(
+        on_sun.len() == 2 && rel(on_sun[0], on_sun[1]) < 0.1,
+        "lights on the sun: {on_sun:?}"
+    );
+    let truth = vemlight::eval::accuracy::Truth::new(&map, Domain::Sphere);
+    let median_cut = Extractor::new()
+        .extract(&map, &opts(256, Domain::Sphere, Method::MedianCut))
+        .lights;
+    let (ours, theirs) = (
+        truth.shadowed_mean(&lights),
+        truth.shadowed_mean(&median_cut),
+    );
+    assert!(
+        ours <= theirs,
+        "shadowed error {ours:.5} against median cut's {theirs:.5}"
+    );
+}
+
 /// ALGORITHMS.md §12, "Not across the horizon": no light's disc crosses the horizon, on every
 /// map and on a sky that is brightest in a wide band just above it (where a cell's core spreads
 /// over tens of degrees and the unclamped disc would reach below the horizon). That a light high
