@@ -226,7 +226,7 @@ impl TemporalFilter {
                 // whole with the part whose radius it is nearer (in ratio), so a light whose
                 // extent comes or goes fades between two discs and one instead of switching.
                 let parts = ExtentParts::of_window(hist.iter());
-                let mut mixture = parts.map(|_| [0.0f64; 4]);
+                let mut mixture = [0.0f64; 4];
                 for (h, past) in taps.iter().zip(hist.iter().rev()) {
                     let w = (h / norm) as f32;
                     dir += Vec3::from_array(past.to_light) * w;
@@ -235,8 +235,8 @@ impl TemporalFilter {
                     }
                     sr += h / norm * past.solid_angle as f64;
                     radius += h / norm * past.angular_radius as f64;
-                    if let (Some(sum), Some(parts)) = (mixture.as_mut(), parts) {
-                        parts.add(past, h / norm, sum);
+                    if let Some(parts) = parts {
+                        parts.add(past, h / norm, &mut mixture);
                     }
                 }
                 Light {
@@ -249,7 +249,7 @@ impl TemporalFilter {
                     irradiance: irr.map(|v| v.max(0.0) as f32),
                     solid_angle: sr.max(0.0) as f32,
                     angular_radius: radius.max(0.0) as f32,
-                    extent: mixture.zip(parts).map(|(sum, parts)| parts.extent(sum)),
+                    extent: parts.map(|parts| parts.extent(mixture)),
                     shadowed: None,
                 }
             })

@@ -1653,21 +1653,26 @@ impl Extractor {
 
     /// Whether cell `c`'s compact source already has a second light: another cell of at least
     /// [`SPLIT_SHARED_SHARE`] of its luminance whose centroid lies within twice the two cells'
-    /// wider disc, both under [`SPLIT_SHARED_MAX_DEG`] (ALGORITHMS.md §4.2, "Split"). A sun on a texel boundary is cut in two by the Lloyd
-    /// steps themselves, and a third light taken from one half leaves that half's disc lopsided.
+    /// wider disc, both under [`SPLIT_SHARED_MAX_DEG`] (ALGORITHMS.md §4.2, "Split"). A sun on a
+    /// texel boundary is cut in two by the Lloyd steps themselves, and a third light taken from
+    /// one half leaves that half's disc lopsided.
     fn source_is_shared(&self, c: usize) -> bool {
-        let cell = &self.accum[c];
         let radius = |a: &CellAccum| angular_radius(a.lum, a.weighted_dir.length()) as f64;
         let compact = SPLIT_SHARED_MAX_DEG.to_radians();
+        let cell = &self.accum[c];
+        let cell_radius = radius(cell);
+        if cell_radius >= compact {
+            return false;
+        }
         let centre = cell.weighted_dir.normalize_or_zero();
-        radius(cell) < compact
-            && self.accum.iter().enumerate().any(|(j, other)| {
-                let wider = radius(cell).max(radius(other));
-                j != c
-                    && other.lum >= SPLIT_SHARED_SHARE * cell.lum
-                    && wider < compact
-                    && centre.angle_between(other.weighted_dir.normalize_or_zero()) < 2.0 * wider
-            })
+        self.accum.iter().enumerate().any(|(j, other)| {
+            if j == c || other.lum < SPLIT_SHARED_SHARE * cell.lum {
+                return false;
+            }
+            let wider = cell_radius.max(radius(other));
+            wider < compact
+                && centre.angle_between(other.weighted_dir.normalize_or_zero()) < 2.0 * wider
+        })
     }
 
     /// Moves each seed to its light's direction (a Lloyd step's re-seeding).
