@@ -652,12 +652,6 @@ fn sum_f64(values: &[f32]) -> f64 {
     lanes.iter().sum::<f64>() + tail
 }
 
-/// The index of the largest of `values` (the first of equals; 0 when empty).
-fn max_index(values: &[f32]) -> usize {
-    let best = max_f32(values, f32::NEG_INFINITY);
-    values.iter().position(|&v| v == best).unwrap_or(0)
-}
-
 /// The largest of `values` (at least `floor`), in eight lanes, so that the loop vectorises.
 fn max_f32(values: &[f32], floor: f32) -> f32 {
     let mut lanes = [floor; 8];
@@ -1293,18 +1287,22 @@ impl Extractor {
         };
         if self.tilt && single && n <= WIDE_TILT_MAX_LIGHTS {
             // Up to TILT_MAX_LIGHTS on the 32² reference the starts share, the whole way;
-            // above, on the 48² one, at most half of it.
-            let wide;
-            let (check, max_fraction) = if n <= TILT_MAX_LIGHTS {
-                (
-                    &*check.get_or_insert_with(|| check_reference(steps_image)),
+            // above, on the 48² one, at most half of it. Either is built only when a fraction
+            // is to be tried.
+            if n <= TILT_MAX_LIGHTS {
+                let check = &mut check;
+                self.tilt_toward_floor(
+                    image,
+                    steps_image,
+                    &mut lights,
+                    move || &*check.get_or_insert_with(|| check_reference(steps_image)),
                     1.0,
-                )
+                );
             } else {
-                wide = check_reference_at(steps_image, WIDE_CHECK_GRID);
-                (&wide, WIDE_TILT_MAX_FRACTION)
-            };
-            self.tilt_toward_floor(image, steps_image, &mut lights, check, max_fraction);
+                let wide = || check_reference_at(steps_image, WIDE_CHECK_GRID);
+                let max_fraction = WIDE_TILT_MAX_FRACTION;
+                self.tilt_toward_floor(image, steps_image, &mut lights, wide, max_fraction);
+            }
         }
         if self.core_azimuth && single && n <= CORE_AZIMUTH_MAX_LIGHTS {
             let check = check.get_or_insert_with(|| check_reference(steps_image));
@@ -1322,14 +1320,16 @@ impl Extractor {
     /// "Tilt"): down toward M_y/P where they give the open ground too much, up toward their
     /// cell's own floor G/P where cells across the horizon leave it too little. Reads the final
     /// assignment's cells (`accum`, `owner`); energies and ids are untouched.
-    fn tilt_toward_floor(
+    fn tilt_toward_floor<C>(
         &self,
         image: &DomainImage,
         steps_image: &DomainImage,
         lights: &mut [Light],
-        check: &IrradianceReference,
+        check: impl FnOnce() -> C,
         max_fraction: f64,
-    ) {
+    ) where
+        C: std::borrow::Borrow<IrradianceReference>,
+    {
         // The map's own floor irradiance ∫ L·max(0, ω_y) dω, as a share of its energy (from
         // the texels' moments; the half-size image holds means), in the lights' units.
         let (up, all) = steps_image
@@ -1578,12 +1578,9 @@ impl Extractor {
     fn cheapest_to_merge(&self, lights: &[Light], skip: &[usize]) -> Option<usize> {
         let n = lights.len();
         let dirs = DirectionsSoa::from_lights(lights);
-        let mut dots = Vec::with_capacity(n);
         let mut weakest = (f64::INFINITY, None);
         for k in (0..n).filter(|k| !skip.contains(k)) {
-            dirs.dots(Vec3::from_array(lights[k].to_light), &mut dots);
-            dots[k] = f32::NEG_INFINITY;
-            let nearest = max_index(&dots);
+            let nearest = nearest_other(&dirs, k);
             let (mk, mj) = (self.accum[k].weighted_dir, self.accum[nearest].weighted_dir);
             let cost = mk.length() + mj.length() - (mk + mj).length();
             if cost < weakest.0 {
@@ -2209,6 +2206,54 @@ impl DirectionsSoa {
     }
 }
 
+/// The direction of `dirs` nearest to direction `k` of them, other than `k` (the first of
+/// equals; `k` itself when it is the only one): a running maximum of the dot product and where it
+/// is, in eight lanes so that the loop vectorises. Compiled twice, as [`assign_texels`].
+#[multiversion(targets("x86_64+avx2+fma"))]
+fn nearest_other(dirs: &DirectionsSoa, k: usize) -> usize {
+    const LANES: usize = 8;
+    let d = Vec3::new(dirs.x[k], dirs.y[k], dirs.z[k]);
+    let dot = |j: usize| {
+        if j == k {
+            f32::NEG_INFINITY
+        } else {
+            d.x * dirs.x[j] + d.y * dirs.y[j] + d.z * dirs.z[j]
+        }
+    };
+    let n = dirs.x.len();
+    let whole = n - n % LANES;
+    let (mut best, mut at) = ([f32::NEG_INFINITY; LANES], [k as u32; LANES]);
+    for (c, ((x, y), z)) in dirs.x[..whole]
+        .as_chunks::<LANES>()
+        .0
+        .iter()
+        .zip(dirs.y[..whole].as_chunks::<LANES>().0)
+        .zip(dirs.z[..whole].as_chunks::<LANES>().0)
+        .enumerate()
+    {
+        for l in 0..LANES {
+            let j = c * LANES + l;
+            let v = d.x * x[l] + d.y * y[l] + d.z * z[l];
+            let v = if j == k { f32::NEG_INFINITY } else { v };
+            if v > best[l] {
+                (best[l], at[l]) = (v, j as u32);
+            }
+        }
+    }
+    // Lane by lane each holds the first of its equals; across lanes the lowest index wins a tie.
+    let mut nearest = (f32::NEG_INFINITY, k as u32);
+    for (v, j) in best
+        .into_iter()
+        .zip(at)
+        .chain((whole..n).map(|j| (dot(j), j as u32)))
+    {
+        if v > nearest.0 || (v == nearest.0 && j < nearest.1 && v > f32::NEG_INFINITY) {
+            nearest = (v, j);
+        }
+    }
+    nearest.1 as usize
+}
+
 /// A cap holding every one of `dirs` (not empty): their normalised sum and the angle to the
 /// farthest of them, padded by float error so that bounds built on it stay conservative.
 fn bounding_cap(dirs: &[Vec3]) -> (Vec3, f32) {
@@ -2523,6 +2568,40 @@ mod tests {
         let mut d = Vec::new();
         p.density(&[f32::NAN, f32::INFINITY, -1.0, 0.0, 4.0], 4, &mut d);
         assert_eq!(d, [0.0, 0.0, 0.0, 0.0, 2.0]);
+    }
+
+    /// The lane-wise nearest neighbour is the plain loop's (the first of equals), at lengths with
+    /// and without a tail, with repeated directions, and a lone direction is its own.
+    #[test]
+    fn the_nearest_other_direction_matches_a_plain_loop() {
+        let mut s = 11u64;
+        for len in [1usize, 2, 7, 8, 9, 17, 256, 300] {
+            let mut dirs: Vec<Vec3> = (0..len)
+                .map(|_| {
+                    let (u, v) = (lcg(&mut s), lcg(&mut s));
+                    let (y, phi) = (1.0 - 2.0 * u, std::f32::consts::TAU * v);
+                    let r = (1.0 - y * y).max(0.0).sqrt();
+                    Vec3::new(r * phi.cos(), y, r * phi.sin())
+                })
+                .collect();
+            // Exact ties: a direction repeated further on.
+            if len > 9 {
+                dirs[len - 1] = dirs[3];
+                dirs[len - 2] = dirs[3];
+            }
+            let mut soa = DirectionsSoa::default();
+            soa.extend(dirs.iter().copied());
+            for k in 0..len {
+                let mut plain = (f32::NEG_INFINITY, k);
+                for (j, d) in dirs.iter().enumerate().filter(|&(j, _)| j != k) {
+                    let v = dirs[k].x * d.x + dirs[k].y * d.y + dirs[k].z * d.z;
+                    if v > plain.0 {
+                        plain = (v, j);
+                    }
+                }
+                assert_eq!(nearest_other(&soa, k), plain.1, "len {len}, k {k}");
+            }
+        }
     }
 
     /// The cap holds (no texel expects more than c of the N seeds, to rounding), texels under it

@@ -15,6 +15,7 @@
 use super::error::{Emitters, IrradianceReference, relative_error};
 use super::light::Light;
 use glam::{DVec2, DVec3, Vec3};
+use std::borrow::Borrow;
 
 /// The fractions tried are k / `TILT_STEPS`, k = 1, 2, ….
 const TILT_STEPS: usize = 8;
@@ -61,39 +62,18 @@ fn tilted(d: DVec3, floor_y: f64, a: f64) -> DVec3 {
 /// that makes the lights' floor equal `floor` (none if the targets move it away) whose estimated
 /// diffuse error at `check` is within `allowance` of the untilted one. Energies and ids are
 /// untouched.
-pub(super) fn tilt_toward_floor(
+pub(super) fn tilt_toward_floor<C>(
     lights: &mut [Light],
     targets: &[Option<f64>],
     floor: f64,
     allowance: f64,
     max_fraction: f64,
-    check: &IrradianceReference,
-) -> f64 {
+    check: impl FnOnce() -> C,
+) -> f64
+where
+    C: Borrow<IrradianceReference>,
+{
     debug_assert_eq!(lights.len(), targets.len());
-    // The lights that stay: their irradiance at the normals is summed once.
-    let staying: Vec<(Vec3, f32)> = lights
-        .iter()
-        .zip(targets)
-        .filter(|(_, t)| t.is_none())
-        .map(|(l, _)| (Vec3::from_array(l.to_light), l.luminance() as f32))
-        .collect();
-    let fixed = Emitters::new(&staying).irradiance_at(check.normals());
-    let moving: Vec<(DVec3, f64, f32)> = lights
-        .iter()
-        .zip(targets)
-        .filter_map(|(l, t)| t.map(|t| (l.dir(), t, l.luminance() as f32)))
-        .collect();
-    let error = |a: f64| {
-        let points: Vec<(Vec3, f32)> = moving
-            .iter()
-            .map(|&(d, t, e)| (tilted(d, t, a).as_vec3(), e))
-            .collect();
-        let mut estimate = Emitters::new(&points).irradiance_at(check.normals());
-        for (e, f) in estimate.iter_mut().zip(&fixed) {
-            *e += f;
-        }
-        relative_error(&estimate, check.truth()).rel_rms
-    };
     // The floor's bias Σ P·max(0, sin e) − F is linear in the fraction while the moving lights
     // stay above the horizon: b(a) = b0 + a (b1 − b0).
     let b0 = floor_bias(lights, floor);
@@ -113,6 +93,35 @@ pub(super) fn tilt_toward_floor(
         // keeps the estimated diffuse error within the allowance.
         let a_zero = (b0 / (b0 - b1)).min(max_fraction.min(1.0));
         let k_max = (a_zero * TILT_STEPS as f64).floor() as usize;
+        if k_max == 0 {
+            return 0.0;
+        }
+        let check = check();
+        let check = check.borrow();
+        // The lights that stay: their irradiance at the normals is summed once.
+        let staying: Vec<(Vec3, f32)> = lights
+            .iter()
+            .zip(targets)
+            .filter(|(_, t)| t.is_none())
+            .map(|(l, _)| (Vec3::from_array(l.to_light), l.luminance() as f32))
+            .collect();
+        let fixed = Emitters::new(&staying).irradiance_at(check.normals());
+        let moving: Vec<(DVec3, f64, f32)> = lights
+            .iter()
+            .zip(targets)
+            .filter_map(|(l, t)| t.map(|t| (l.dir(), t, l.luminance() as f32)))
+            .collect();
+        let error = |a: f64| {
+            let points: Vec<(Vec3, f32)> = moving
+                .iter()
+                .map(|&(d, t, e)| (tilted(d, t, a).as_vec3(), e))
+                .collect();
+            let mut estimate = Emitters::new(&points).irradiance_at(check.normals());
+            for (e, f) in estimate.iter_mut().zip(&fixed) {
+                *e += f;
+            }
+            relative_error(&estimate, check.truth()).rel_rms
+        };
         let e0 = error(0.0);
         for k in (1..=k_max).rev() {
             let a = k as f64 / TILT_STEPS as f64;
@@ -192,7 +201,7 @@ mod tests {
                 floor,
                 DESCENT_ALLOWANCE,
                 1.0,
-                &check,
+                || &check,
             );
             // The lights descending toward a uniform sky's floor lower the estimate: a tilt is
             // taken, the largest eighth that stays at or above the floor.
@@ -207,7 +216,9 @@ mod tests {
         let whole = floor_of(&lights) - 4.0 * lights[0].luminance() * (s as f64 - 0.5);
         for cap in [0.25, 0.5] {
             let mut capped = lights.clone();
-            let a = tilt_toward_floor(&mut capped, &targets, whole, DESCENT_ALLOWANCE, cap, &check);
+            let a = tilt_toward_floor(&mut capped, &targets, whole, DESCENT_ALLOWANCE, cap, || {
+                &check
+            });
             assert!(a > 0.0 && a <= cap + 1e-12, "took {a} under a cap of {cap}");
             let bias = floor_of(&capped) - whole;
             assert!(
@@ -219,7 +230,9 @@ mod tests {
         let mut same = lights.clone();
         let above = floor_of(&lights) + 0.1;
         assert_eq!(
-            tilt_toward_floor(&mut same, &targets, above, DESCENT_ALLOWANCE, 1.0, &check),
+            tilt_toward_floor(&mut same, &targets, above, DESCENT_ALLOWANCE, 1.0, || {
+                &check
+            }),
             0.0
         );
         assert_eq!(same, lights);
@@ -235,14 +248,14 @@ mod tests {
         let up = vec![Some(0.7); 4];
         let more = floor_of(&low) + 4.0 * low[0].luminance() * (0.7 - 0.2) / 2.0;
         let mut risen = low.clone();
-        let a = tilt_toward_floor(&mut risen, &up, more, RISE_ALLOWANCE, 1.0, &check);
+        let a = tilt_toward_floor(&mut risen, &up, more, RISE_ALLOWANCE, 1.0, || &check);
         assert!(a > 0.0 && a <= 0.5 + 1e-12, "took {a}");
         assert!(floor_of(&risen) <= more + 1e-6, "overshot the floor");
         // Lights without a target stay, whatever the floor.
         let mut same = lights.clone();
         let none = vec![None; 4];
         assert_eq!(
-            tilt_toward_floor(&mut same, &none, half, DESCENT_ALLOWANCE, 1.0, &check),
+            tilt_toward_floor(&mut same, &none, half, DESCENT_ALLOWANCE, 1.0, || &check),
             0.0
         );
         assert_eq!(same, lights);
