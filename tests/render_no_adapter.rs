@@ -13,7 +13,9 @@ fn missing_backend() -> &'static str {
     }
 }
 
-fn lightset_file() -> std::path::PathBuf {
+/// A light set written to a file named for `test`: the two tests run in parallel in one process, so
+/// a shared name would let one remove the file the other is about to read.
+fn lightset_file(test: &str) -> std::path::PathBuf {
     let out = Command::new(env!("CARGO_BIN_EXE_vemlight"))
         .args([
             "lights",
@@ -25,8 +27,7 @@ fn lightset_file() -> std::path::PathBuf {
         .output()
         .unwrap();
     assert!(out.status.success());
-    let path =
-        std::env::temp_dir().join(format!("vemlight-no-adapter-{}.json", std::process::id()));
+    let path = std::env::temp_dir().join(format!("vemlight-{test}-{}.json", std::process::id()));
     std::fs::write(&path, out.stdout).unwrap();
     path
 }
@@ -50,7 +51,7 @@ fn check(out: std::process::Output) {
 
 #[test]
 fn no_adapter_through_wgpu_backend_is_a_clear_error() {
-    let json = lightset_file();
+    let json = lightset_file("no-adapter");
     let dir = std::env::temp_dir().join(format!("vemlight-no-adapter-out-{}", std::process::id()));
     let out = Command::new(env!("CARGO_BIN_EXE_vemlight"))
         .args(["view", "--headless", "--frames", "1", "--out"])
@@ -75,7 +76,7 @@ fn no_adapter_through_wgpu_backend_is_a_clear_error() {
 /// can draws the frame.
 #[test]
 fn an_adapter_without_the_renderers_formats_is_a_clear_error() {
-    let json = lightset_file();
+    let json = lightset_file("gl");
     let dir = std::env::temp_dir().join(format!("vemlight-gl-out-{}", std::process::id()));
     let out = Command::new(env!("CARGO_BIN_EXE_vemlight"))
         .args(["view", "--headless", "--frames", "1", "--backend", "gl"])
