@@ -11,7 +11,7 @@
 //! taps clamped away from the output power.
 
 use crate::lights::{Light, LightExtent};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 
 /// The kernel family.
@@ -226,7 +226,7 @@ impl TemporalFilter {
                 // whole with the part whose radius it is nearer (in ratio), so a light whose
                 // extent comes or goes fades between two discs and one instead of switching.
                 let parts = ExtentParts::of_window(hist.iter());
-                let mut mixture = [0.0f64; 4];
+                let mut mixture = ExtentSums::default();
                 for (h, past) in taps.iter().zip(hist.iter().rev()) {
                     let w = (h / norm) as f32;
                     dir += Vec3::from_array(past.to_light) * w;
@@ -280,9 +280,8 @@ impl ExtentParts {
         })
     }
 
-    /// Adds one frame of weight `w` to `sum` = [core luminance, core luminance × radius, rest
-    /// luminance, rest luminance × radius] (as shares of the light's).
-    fn add(self, l: &Light, w: f64, sum: &mut [f64; 4]) {
+    /// Adds one frame of weight `w` to `sums`.
+    fn add(self, l: &Light, w: f64, sums: &mut ExtentSums) {
         let (core_share, core_radius, rest_radius) = match l.extent {
             Some(e) => (
                 e.core_share as f64,
@@ -296,14 +295,18 @@ impl ExtentParts {
                 (if core { 1.0 } else { 0.0 }, r, r)
             }
         };
+        let core_dir = l.extent.and_then(|e| e.core_to_light).unwrap_or(l.to_light);
+        let sum = &mut sums.parts;
         sum[0] += w * core_share;
         sum[1] += w * core_share * core_radius;
         sum[2] += w * (1.0 - core_share);
         sum[3] += w * (1.0 - core_share) * rest_radius;
+        sums.core_dir += DVec3::from_array(core_dir.map(f64::from)) * (w * core_share);
     }
 
-    fn extent(self, [core, core_r, rest, rest_r]: [f64; 4]) -> LightExtent {
+    fn extent(self, sums: ExtentSums) -> LightExtent {
         const EMPTY: f64 = 1e-9;
+        let [core, core_r, rest, rest_r] = sums.parts;
         let share = (core / (core + rest)).clamp(0.0, 1.0);
         LightExtent {
             core_share: if share.is_finite() { share as f32 } else { 0.0 },
@@ -319,8 +322,23 @@ impl ExtentParts {
                 self.rest_radius
             }
             .max(0.0) as f32,
+            core_to_light: None,
         }
+        .toward(if core > EMPTY {
+            sums.core_dir
+        } else {
+            DVec3::ZERO
+        })
     }
+}
+
+/// A window's sums for the extent's mixture: `parts` = [core luminance, core luminance × radius,
+/// rest luminance, rest luminance × radius] (as shares of the light's), and the core's
+/// directions weighed by the core's luminance (renormalised, as `to_light` is).
+#[derive(Default)]
+struct ExtentSums {
+    parts: [f64; 4],
+    core_dir: DVec3,
 }
 
 #[cfg(test)]
@@ -461,6 +479,50 @@ mod tests {
         assert!((shares[m - 1] - 0.8).abs() < 1e-5, "{shares:?}");
     }
 
+    /// The core's direction is filtered as the mixture's: a constant one passes unchanged; one
+    /// that steps 1° turns monotonically onto the new direction; a frame without one counts the
+    /// light's own direction (a core on the light).
+    #[test]
+    fn the_cores_direction_is_filtered_with_its_share() {
+        let spec = FilterSpec::default();
+        let m = spec.kernel().len();
+        let toward = |deg: f32| {
+            let mut l = two_part(0.5);
+            let d = Vec3::new(deg.to_radians().sin(), deg.to_radians().cos(), 0.0);
+            l.extent = l.extent.map(|e| LightExtent {
+                core_to_light: Some(d.to_array()),
+                ..e
+            });
+            l
+        };
+        let core = |l: &Light| {
+            Vec3::from_array(
+                l.extent
+                    .expect("extent")
+                    .core_to_light
+                    .expect("a core direction"),
+            )
+        };
+        let mut f = TemporalFilter::new(&spec);
+        for _ in 0..m {
+            let out = f.filter(&[toward(0.5)]);
+            let angle = core(&out[0]).angle_between(Vec3::new(
+                0.5f32.to_radians().sin(),
+                0.5f32.to_radians().cos(),
+                0.0,
+            ));
+            assert!(angle < 1e-5, "constant: {angle}");
+        }
+        let angles: Vec<f32> = (0..m)
+            .map(|_| core(&f.filter(&[toward(1.5)])[0]).x.asin().to_degrees())
+            .collect();
+        assert!(angles.windows(2).all(|w| w[1] >= w[0] - 1e-4), "{angles:?}");
+        assert!((angles[m - 1] - 1.5).abs() < 1e-3, "{angles:?}");
+        // A frame with no core direction: its core is the light (+Y, 0°), pulling toward it.
+        let mixed = core(&f.filter(&[two_part(0.5)])[0]).x.asin().to_degrees();
+        assert!(mixed < 1.5 - 1e-3 && mixed > 0.0, "{mixed}");
+    }
+
     /// A light whose extent goes (and comes back) fades between two discs and one: the shadow
     /// it draws across an edge changes per frame by no more than the kernel's largest tap times
     /// the whole change (a switch would move it by the whole change at once), and the light is
@@ -536,6 +598,7 @@ mod tests {
                 core_share: share,
                 core_radius: 0.01,
                 rest_radius: 0.1,
+                core_to_light: None,
             }),
             ..light(0, Vec3::Y, 1.0)
         }

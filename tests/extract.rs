@@ -772,6 +772,49 @@ fn a_sun_in_a_bright_glare_gets_a_two_part_extent() {
     assert!(two < 0.7 * one, "two-part extent {two}, one disc {one}");
 }
 
+/// ALGORITHMS.md §12, "Two-part extent": a sun (60 %) in a glare off to one side (a 4° disc
+/// centred 3° away, 40 %) gives one light at the pair's centroid, aside of the sun, whose
+/// extent's core points at the sun itself, so that the sun's hard shadow is drawn where it falls.
+#[test]
+fn a_suns_core_keeps_its_own_direction_beside_a_lopsided_glare() {
+    let sun = DVec3::new(-0.3, 0.6, 0.4).normalize();
+    let glare =
+        glam::DQuat::from_axis_angle(DVec3::Y, 3f64.to_radians() / (1.0 - sun.y * sun.y).sqrt())
+            * sun;
+    let (sun_r, glare_r) = (0.5f64.to_radians(), 4f64.to_radians());
+    let (sun_sr, glare_sr) = (
+        std::f64::consts::TAU * (1.0 - sun_r.cos()),
+        std::f64::consts::TAU * (1.0 - glare_r.cos()),
+    );
+    let (sun_l, glare_l) = ((0.6 / sun_sr) as f32, (0.4 / glare_sr) as f32);
+    let map = vemlight::eval::scenes::LatLongDirs::new(1024, 512).map(|d| {
+        if d.dot(sun) >= sun_r.cos() {
+            [sun_l; 3]
+        } else if d.dot(glare) >= glare_r.cos() {
+            [glare_l; 3]
+        } else {
+            [0.0; 3]
+        }
+    });
+    let out = Extractor::new().extract(&map, &opts(1, Domain::Sphere, Method::Voronoi));
+    let light = out.lights[0];
+    let core = light
+        .extent
+        .and_then(|e| e.core_to_light)
+        .expect("a sun in a wider glare has a two-part extent with the core's direction");
+    let core = DVec3::from_array(core.map(f64::from));
+    let (aside, off) = (
+        light.dir().angle_between(sun).to_degrees(),
+        core.angle_between(sun).to_degrees(),
+    );
+    eprintln!("the light {aside:.3}° from the sun, its core {off:.3}°");
+    assert!(
+        aside > 0.5,
+        "the light {aside}° from the sun: the glare pulls it aside"
+    );
+    assert!(off < 0.2, "the core {off}° from the sun");
+}
+
 /// ALGORITHMS.md §12, "Core and rest": the rest of a cell is binned by angle, so the sky that a
 /// sun's cell also holds far from the sun does not widen its disc. A 0.27° sun (35 %) in a 2°
 /// glare (60 %) over a dim sky, at 16 lights: the sun's cell holds about a tenth of its light in

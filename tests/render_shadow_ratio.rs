@@ -236,6 +236,7 @@ fn a_two_part_extent_draws_its_two_discs_weighed_by_share() {
         core_share: share,
         core_radius,
         rest_radius,
+        core_to_light: None,
     });
     let drawn = raw_radiance_at(&[two], &points);
     println!("core {core:?}\nrest {rest:?}\none disc {median:?}\ntwo-part {drawn:?}");
@@ -257,6 +258,61 @@ fn a_two_part_extent_draws_its_two_discs_weighed_by_share() {
         apart >= 0.05 * open,
         "two-part vs one disc: at most {apart}"
     );
+}
+
+/// ALGORITHMS.md §12, "Two-part extent", in the viewer: a light whose core lies 2° aside of it
+/// (a sun beside its glow) draws its shadow from the core's direction, so the slab's shadow edge
+/// moves with the core (1.0 × tan 2° = 3.5 cm), while its shading stays the light's own: the
+/// render is the two one-disc renders from the core's direction mixed by the share.
+#[test]
+fn a_two_part_extent_draws_its_shadow_from_its_cores_direction() {
+    let e = 3.0;
+    let open = ALBEDO / PI * e;
+    let xs = [0.4f32, 0.44, 0.46, 0.48, 0.5, 0.52, 0.54, 0.58];
+    let points: Vec<Vec3> = xs.iter().map(|&x| Vec3::new(x, 0.0, 0.0)).collect();
+    let (core_radius, rest_radius, share) = (0.25f32.to_radians(), 4f32.to_radians(), 0.7);
+    let aside = 2f32.to_radians();
+    let core_dir = Vec3::new(aside.sin(), aside.cos(), 0.0);
+    // From the core's direction, with the light's shading (n·l = 1 from +Y).
+    let one_disc = |radius: f32| {
+        let mut l = light(0, core_dir, e / aside.cos());
+        l.angular_radius = radius;
+        raw_radiance_at(&[l], &points)
+    };
+    let (core, rest) = (one_disc(core_radius), one_disc(rest_radius));
+    let mut two = light(0, Vec3::Y, e);
+    two.angular_radius = 1f32.to_radians();
+    let extent = LightExtent {
+        core_share: share,
+        core_radius,
+        rest_radius,
+        core_to_light: None,
+    };
+    two.extent = Some(extent);
+    let about_light = raw_radiance_at(&[two], &points);
+    two.extent = Some(LightExtent {
+        core_to_light: Some(core_dir.to_array()),
+        ..extent
+    });
+    let drawn = raw_radiance_at(&[two], &points);
+    println!(
+        "about the light {about_light:?}
+toward the core {drawn:?}"
+    );
+    for (i, x) in xs.iter().enumerate() {
+        let expected = share * core[i] + (1.0 - share) * rest[i];
+        assert!(
+            (drawn[i] - expected).abs() <= TOLERANCE * open,
+            "x = {x}: drawn {} vs {share}·core + {}·rest = {expected}",
+            drawn[i],
+            1.0 - share
+        );
+    }
+    // The edge moved: across it, the core's direction lights what the light's shades.
+    let moved = (0..xs.len())
+        .map(|i| drawn[i] - about_light[i])
+        .fold(0.0f32, f32::max);
+    assert!(moved >= 0.3 * open, "the edge moved by at most {moved}");
 }
 
 /// The shadow budget (`vemlight view --shadowed K`, docs/RENDER.md): of two lights, one marked

@@ -129,7 +129,8 @@ pub fn sky_emitters(map: &EnvMap) -> Vec<(DVec3, f64)> {
 mod tests {
     use super::*;
     use crate::envmap::Projection;
-    use crate::lights::Light;
+    use crate::lights::{Light, LightExtent};
+    use glam::DQuat;
 
     fn light(d: DVec3, y: f32, radius: f32) -> Light {
         Light {
@@ -176,6 +177,60 @@ mod tests {
             assert!(
                 (max - open).abs() / open < 0.01,
                 "{}: {max} vs {open}",
+                scene.name
+            );
+        }
+    }
+
+    /// A sun with a glow off to one side: the light (the centroid) sits aside of the sun, and
+    /// its two-part extent's core drawn toward the sun's own direction (ALGORITHMS.md §12,
+    /// "Two-part extent") draws the sun's shadow where it falls; about the light's, it does not.
+    #[test]
+    fn a_cores_shadow_is_drawn_from_the_cores_direction() {
+        let (w, h) = (2048, 1024);
+        let sun = DVec3::new(0.3, 0.8, -0.4).normalize();
+        let glow = DQuat::from_axis_angle(DVec3::Y, 12f64.to_radians()) * sun;
+        let (rs, rg) = (0.5f64.to_radians(), 10f64.to_radians());
+        let mut pixels = vec![[0.0f32; 3]; w * h];
+        let (mut es, mut eg, mut moment) = (0.0, 0.0, DVec3::ZERO);
+        for j in 0..h {
+            for i in 0..w {
+                let (d, sr) = Projection::LatLong.pixel(i, j, w, h).unwrap();
+                let y = if d.dot(sun) >= rs.cos() {
+                    es += 5000.0 * sr;
+                    5000.0
+                } else if d.dot(glow) >= rg.cos() {
+                    eg += 10.0 * sr;
+                    10.0
+                } else {
+                    continue;
+                };
+                pixels[j * w + i] = [y; 3];
+                moment += d * (y as f64 * sr);
+            }
+        }
+        let map = EnvMap::from_pixels(w, h, pixels, Projection::LatLong).unwrap();
+        let em = sky_emitters(&map);
+        let mut l = light(moment, (es + eg) as f32, 2f32.to_radians());
+        assert!(
+            l.dir().angle_between(sun) > rs,
+            "the light is aside of the sun"
+        );
+        let extent = LightExtent {
+            core_share: (es / (es + eg)) as f32,
+            core_radius: rs as f32,
+            rest_radius: rg as f32,
+            core_to_light: None,
+        };
+        for scene in scenes(0.25) {
+            let reference = ShadowReference::new(&scene, &em);
+            l.extent = Some(extent);
+            let about_light = reference.error(&scene, &[l]);
+            l.extent = Some(extent.toward(sun));
+            let toward_core = reference.error(&scene, &[l]);
+            assert!(
+                toward_core < 0.5 * about_light,
+                "{}: {toward_core} vs {about_light}",
                 scene.name
             );
         }

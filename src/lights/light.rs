@@ -23,9 +23,9 @@ pub struct Light {
     #[serde(default)]
     pub angular_radius: f32,
     /// Where one disc draws a source poorly (a sun in a wider glow): the light's luminance as a
-    /// compact core and a wider rest, both discs about `to_light` (ALGORITHMS.md §12, "Two-part
-    /// extent"). A client that draws one disc uses `angular_radius`; absent where one disc is
-    /// enough.
+    /// compact core about its own direction and a wider rest about `to_light` (ALGORITHMS.md §12,
+    /// "Two-part extent"). A client that draws one disc uses `angular_radius`; absent where one
+    /// disc is enough.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extent: Option<LightExtent>,
     /// With a client's shadow budget (`shadowed=K`, see [`super::budget`]): whether this light is
@@ -58,9 +58,11 @@ impl Light {
 }
 
 /// A light's two-part extent (ALGORITHMS.md §12, "Two-part extent"): a share of its luminance
-/// in a compact core's disc and the rest in a wider disc, both about the light's direction. Its
-/// shadow is the two discs' visibilities weighed by their shares: the hard shadow of a sun and
-/// the soft one of its glow, which one disc of the half-energy radius draws as neither.
+/// in a compact core's disc about the core's own direction and the rest in a wider disc about
+/// the light's. Its shadow is the two discs' visibilities weighed by their shares: the hard
+/// shadow of a sun and the soft one of its glow, which one disc of the half-energy radius draws
+/// as neither; the sun's where the sun is, though the light (the cell's centroid, with its sky)
+/// is a little aside.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LightExtent {
     /// The core's share of the light's luminance, in (0, 1).
@@ -69,6 +71,10 @@ pub struct LightExtent {
     pub core_radius: f32,
     /// Radians: the uniform disc with the rest's half-energy radius.
     pub rest_radius: f32,
+    /// Unit vector toward the core's centroid; absent (older documents), the light's
+    /// `to_light`. Only the core's shadow is drawn from it: shading uses `to_light`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub core_to_light: Option<[f32; 3]>,
 }
 
 impl LightExtent {
@@ -90,6 +96,7 @@ impl LightExtent {
             core_share: (pc / (pc + pr)) as f32,
             core_radius: angular_radius(pc, mc),
             rest_radius: core_rest_radius((0.0, 0.0), rest),
+            core_to_light: None,
         }
         .worth_two_discs()
     }
@@ -114,10 +121,30 @@ impl LightExtent {
         two.then_some(self)
     }
 
-    /// The two discs, (share, radius) each.
-    pub fn parts(&self) -> [(f64, f32); 2] {
+    /// The same extent with its core toward `core_moment`'s direction (the core's centroid);
+    /// unchanged where that has none.
+    pub fn toward(self, core_moment: DVec3) -> LightExtent {
+        LightExtent {
+            core_to_light: core_moment
+                .try_normalize()
+                .map(|d| d.as_vec3().to_array())
+                .or(self.core_to_light),
+            ..self
+        }
+    }
+
+    /// The two discs, (share, radius, direction) each, for a light toward `to_light`.
+    pub fn parts(&self, to_light: DVec3) -> [(f64, f32, DVec3); 2] {
         let s = f64::from(self.core_share).clamp(0.0, 1.0);
-        [(s, self.core_radius), (1.0 - s, self.rest_radius)]
+        let core = self
+            .core_to_light
+            .map(|d| DVec3::from_array(d.map(f64::from)))
+            .and_then(DVec3::try_normalize)
+            .unwrap_or(to_light);
+        [
+            (s, self.core_radius, core),
+            (1.0 - s, self.rest_radius, to_light),
+        ]
     }
 }
 
@@ -470,8 +497,18 @@ mod tests {
         assert!((e.core_share as f64 - 0.4).abs() < 1e-6, "{e:?}");
         assert!((e.core_radius as f64 - rc).abs() < 1e-3 * rc, "{e:?}");
         assert!((e.rest_radius as f64 - rh).abs() < 0.02 * rh, "{e:?}");
-        let [(s0, r0), (s1, r1)] = e.parts();
+        let [(s0, r0, d0), (s1, r1, d1)] = e.parts(DVec3::Y);
         assert!((s0 + s1 - 1.0).abs() < 1e-12 && r0 == e.core_radius && r1 == e.rest_radius);
+        assert!(
+            d0 == DVec3::Y && d1 == DVec3::Y,
+            "no core direction: both about the light's"
+        );
+        let aside = DVec3::new(0.01, 1.0, 0.0);
+        let [(_, _, d0), (_, _, d1)] = e.toward(aside * 3.0).parts(DVec3::Y);
+        assert!(
+            d0.abs_diff_eq(aside.normalize(), 1e-6) && d1 == DVec3::Y,
+            "the core's own"
+        );
         assert_eq!(extent(1.0, rh), None, "a lone core");
         assert_eq!(extent(0.995, rh), None, "a sliver of rest");
         assert_eq!(

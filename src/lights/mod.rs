@@ -2031,7 +2031,16 @@ impl Extractor {
                     let core = (a.core_lum, a.core_moment.length());
                     (
                         core_rest_radius(core, rest),
-                        LightExtent::of_core_and_rest(core, rest),
+                        // The core's shadow from its own direction (ALGORITHMS.md §12,
+                        // "Two-part extent"), unless the horizon lies between it and the cell's.
+                        LightExtent::of_core_and_rest(core, rest).map(|e| {
+                            let same_side = (a.core_moment.y > 0.0) == (a.weighted_dir.y > 0.0);
+                            if same_side {
+                                e.toward(a.core_moment)
+                            } else {
+                                e
+                            }
+                        }),
                     )
                 } else {
                     let along = a.weighted_dir.dot(d.as_dvec3().normalize_or_zero());

@@ -171,7 +171,8 @@ impl ShadowReference {
 }
 
 /// E_N at every probe of `scene`: each light's luminance × max(0, l_y) × its disc-averaged
-/// visibility; a light with a two-part extent, each part's share of that over its own disc.
+/// visibility; a light with a two-part extent, each part's share of that over its own disc (the
+/// core's about its own direction).
 pub fn lights_irradiance(scene: &ShadowScene, lights: &[Light]) -> Vec<f64> {
     struct Rays {
         dirs: Vec<DVec3>,
@@ -187,14 +188,13 @@ pub fn lights_irradiance(scene: &ShadowScene, lights: &[Light]) -> Vec<f64> {
         .filter(|l| l.to_light[1] > 0.0 && l.luminance() > 0.0)
         .flat_map(|l| {
             let [core, rest] = match l.extent {
-                Some(e) => e.parts().map(Some),
-                None => [Some((1.0, l.angular_radius)), None],
+                Some(e) => e.parts(l.dir()).map(Some),
+                None => [Some((1.0, l.angular_radius, l.dir())), None],
             };
             [core, rest].into_iter().flatten().map(move |p| (l, p))
         });
     let rays: Vec<Rays> = parts
-        .map(|(l, (share, radius))| {
-            let axis = l.dir();
+        .map(|(l, (share, radius, axis))| {
             let dirs = disc_rays(axis, radius as f64);
             let spread = dirs
                 .iter()
@@ -203,7 +203,8 @@ pub fn lights_irradiance(scene: &ShadowScene, lights: &[Light]) -> Vec<f64> {
             let up = dirs.iter().filter(|r| r.y > 0.0).count();
             Rays {
                 dirs,
-                weight: share * l.luminance() * axis.y,
+                // The light's cosine for either part: shading is by `to_light` (§9's E_N).
+                weight: share * l.luminance() * l.dir().y,
                 axis,
                 spread,
                 up,

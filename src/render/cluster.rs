@@ -270,8 +270,14 @@ impl Clusterer {
     }
 }
 
+/// The direction a light's shadow is drawn from: its core's, where it has a two-part extent
+/// with one (ALGORITHMS.md §12: the sun's hard shadow where the sun is; the rest's soft shadow,
+/// at least four times as wide, barely moves), else `to_light`. Shading uses `to_light`.
 fn dir(l: &Light) -> Vec3 {
-    Vec3::from_array(l.to_light).normalize_or(Vec3::Y)
+    let core = l.extent.and_then(|e| e.core_to_light);
+    Vec3::from_array(core.unwrap_or(l.to_light))
+        .try_normalize()
+        .unwrap_or_else(|| Vec3::from_array(l.to_light).normalize_or(Vec3::Y))
 }
 
 /// A light's weight in its group's axis: its luminance, with a floor so that black lights still
