@@ -18,8 +18,6 @@ export interface WireLight {
   angular_radius: number;
   /** Present when the stream was asked `shadowed=K`: exactly min(K, lights.length) are true. */
   shadowed?: boolean;
-  /** A two-part extent (a sun in its glow): the core's share and discs, and its own direction. */
-  extent?: { core_share: number; core_radius: number; rest_radius: number; core_to_light?: Vec3 };
 }
 
 /** The parts of a LightSet this module reads; the document has more (see the schema). */
@@ -44,8 +42,6 @@ export interface DirectionalParams {
   color: Vec3;
   intensity: number;
   angularRadius: number;
-  /** Where the shadow map is drawn from: `extent.core_to_light` where present, else `direction`. */
-  shadowDirection: Vec3;
 }
 
 export interface Plan {
