@@ -55,7 +55,28 @@ impl Light {
         let r = self.angular_radius as f64;
         self.dir() * self.luminance() * (1.0 - 0.25 * r * r).max(0.0)
     }
+
+    /// Where a client with one shadow map for this light draws it from: the extent's core
+    /// direction when it lies within [`ONE_MAP_CORE_MAX_DEG`] of `to_light`, else `to_light`
+    /// (ALGORITHMS.md §12, "Two-part extent"). Shading stays n·`to_light` either way.
+    pub fn one_map_shadow_dir(&self) -> DVec3 {
+        let to_light = self.dir().normalize_or(DVec3::Y);
+        self.extent
+            .and_then(|e| e.core_to_light)
+            .map(|d| DVec3::from_array(d.map(f64::from)))
+            .and_then(DVec3::try_normalize)
+            .filter(|core| core.angle_between(to_light) <= ONE_MAP_CORE_MAX_DEG.to_radians())
+            .unwrap_or(to_light)
+    }
 }
+
+/// How far (degrees) a core's direction may lie from its light for one shadow map drawn from
+/// the core to stand for both discs. Drawn so, the rest's disc is drawn about the core too: on
+/// low suns, whose cells hold much sky, the core lies 4–11° from the light and the rest's soft
+/// shadow moved that far made the shadowed error worse (the 2° hazy sun at 16 lights 1.08 →
+/// 1.61 × median cut's); within 3° it was better or within noise on every one of the 72 skies
+/// (EVALUATION.md, "The core's own direction").
+pub const ONE_MAP_CORE_MAX_DEG: f64 = 3.0;
 
 /// A light's two-part extent (ALGORITHMS.md §12, "Two-part extent"): a share of its luminance
 /// in a compact core's disc about the core's own direction and the rest in a wider disc about
@@ -509,6 +530,23 @@ mod tests {
             d0.abs_diff_eq(aside.normalize(), 1e-6) && d1 == DVec3::Y,
             "the core's own"
         );
+        let mut light = Light {
+            id: 0,
+            to_light: [0.0, 1.0, 0.0],
+            irradiance: [1.0; 3],
+            solid_angle: 0.01,
+            angular_radius: 0.02,
+            extent: None,
+            shadowed: None,
+        };
+        assert_eq!(light.one_map_shadow_dir(), DVec3::Y, "no extent");
+        for (deg, own) in [(2.9, true), (3.1, false)] {
+            let t = f64::to_radians(deg);
+            let core = DVec3::new(t.sin(), t.cos(), 0.0);
+            light.extent = Some(e.toward(core));
+            let want = if own { core } else { DVec3::Y };
+            assert!(light.one_map_shadow_dir().abs_diff_eq(want, 1e-6), "{deg}°");
+        }
         assert_eq!(extent(1.0, rh), None, "a lone core");
         assert_eq!(extent(0.995, rh), None, "a sliver of rest");
         assert_eq!(

@@ -270,14 +270,10 @@ impl Clusterer {
     }
 }
 
-/// The direction a light's shadow is drawn from: its core's, where it has a two-part extent
-/// with one (ALGORITHMS.md §12: the sun's hard shadow where the sun is; the rest's soft shadow,
-/// at least four times as wide, barely moves), else `to_light`. Shading uses `to_light`.
+/// The direction a light's shadow map is drawn from ([`Light::one_map_shadow_dir`]: its core's,
+/// where that lies near the light). Shading uses `to_light`.
 fn dir(l: &Light) -> Vec3 {
-    let core = l.extent.and_then(|e| e.core_to_light);
-    Vec3::from_array(core.unwrap_or(l.to_light))
-        .try_normalize()
-        .unwrap_or_else(|| Vec3::from_array(l.to_light).normalize_or(Vec3::Y))
+    l.one_map_shadow_dir().as_vec3().normalize_or(Vec3::Y)
 }
 
 /// A light's weight in its group's axis: its luminance, with a floor so that black lights still
