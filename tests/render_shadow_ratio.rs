@@ -209,6 +209,26 @@ fn a_light_with_an_angular_radius_casts_a_penumbra() {
     );
 }
 
+/// At every point x, `drawn` is the core's and the rest's one-disc renders mixed by the core's
+/// share (the shading is linear in visibility), within the render's tolerance.
+fn assert_mixed_by_share(
+    xs: &[f32],
+    drawn: &[f32],
+    (core, rest): (&[f32], &[f32]),
+    share: f32,
+    open: f32,
+) {
+    for (i, x) in xs.iter().enumerate() {
+        let expected = share * core[i] + (1.0 - share) * rest[i];
+        assert!(
+            (drawn[i] - expected).abs() <= TOLERANCE * open,
+            "x = {x}: drawn {} vs {share}·core + {}·rest = {expected}",
+            drawn[i],
+            1.0 - share
+        );
+    }
+}
+
 /// ALGORITHMS.md §12, "Two-part extent", in the viewer: a light with a compact core and a wider
 /// rest draws the core's share of the core disc's shadow plus the rest of the rest disc's, so at
 /// every point across the slab's edge the render is the two one-disc renders mixed by the share
@@ -240,15 +260,7 @@ fn a_two_part_extent_draws_its_two_discs_weighed_by_share() {
     });
     let drawn = raw_radiance_at(&[two], &points);
     println!("core {core:?}\nrest {rest:?}\none disc {median:?}\ntwo-part {drawn:?}");
-    for (i, x) in xs.iter().enumerate() {
-        let expected = share * core[i] + (1.0 - share) * rest[i];
-        assert!(
-            (drawn[i] - expected).abs() <= TOLERANCE * open,
-            "x = {x}: two-part {} vs {share}·core + {}·rest = {expected}",
-            drawn[i],
-            1.0 - share
-        );
-    }
+    assert_mixed_by_share(&xs, &drawn, (&core, &rest), share, open);
     // Where the core's hard edge and the rest's soft one differ, so does the two-part light
     // from its one disc.
     let apart = (0..xs.len())
@@ -295,19 +307,8 @@ fn a_two_part_extent_draws_its_shadow_from_its_cores_direction() {
         ..extent
     });
     let drawn = raw_radiance_at(&[two], &points);
-    println!(
-        "about the light {about_light:?}
-toward the core {drawn:?}"
-    );
-    for (i, x) in xs.iter().enumerate() {
-        let expected = share * core[i] + (1.0 - share) * rest[i];
-        assert!(
-            (drawn[i] - expected).abs() <= TOLERANCE * open,
-            "x = {x}: drawn {} vs {share}·core + {}·rest = {expected}",
-            drawn[i],
-            1.0 - share
-        );
-    }
+    println!("about the light {about_light:?}\ntoward the core {drawn:?}");
+    assert_mixed_by_share(&xs, &drawn, (&core, &rest), share, open);
     // The edge moved: across it, the core's direction lights what the light's shades.
     let moved = (0..xs.len())
         .map(|i| drawn[i] - about_light[i])

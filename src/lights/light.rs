@@ -62,9 +62,7 @@ impl Light {
     pub fn one_map_shadow_dir(&self) -> DVec3 {
         let to_light = self.dir().normalize_or(DVec3::Y);
         self.extent
-            .and_then(|e| e.core_to_light)
-            .map(|d| DVec3::from_array(d.map(f64::from)))
-            .and_then(DVec3::try_normalize)
+            .and_then(|e| e.core_dir())
             .filter(|core| core.angle_between(to_light) <= ONE_MAP_CORE_MAX_DEG.to_radians())
             .unwrap_or(to_light)
     }
@@ -154,14 +152,17 @@ impl LightExtent {
         }
     }
 
+    /// The core's own direction, a unit vector, where the extent has one (and it is not zero).
+    pub fn core_dir(&self) -> Option<DVec3> {
+        self.core_to_light
+            .map(|d| DVec3::from_array(d.map(f64::from)))
+            .and_then(DVec3::try_normalize)
+    }
+
     /// The two discs, (share, radius, direction) each, for a light toward `to_light`.
     pub fn parts(&self, to_light: DVec3) -> [(f64, f32, DVec3); 2] {
         let s = f64::from(self.core_share).clamp(0.0, 1.0);
-        let core = self
-            .core_to_light
-            .map(|d| DVec3::from_array(d.map(f64::from)))
-            .and_then(DVec3::try_normalize)
-            .unwrap_or(to_light);
+        let core = self.core_dir().unwrap_or(to_light);
         [
             (s, self.core_radius, core),
             (1.0 - s, self.rest_radius, to_light),
