@@ -295,7 +295,9 @@ impl ExtentParts {
                 (if core { 1.0 } else { 0.0 }, r, r)
             }
         };
-        let core_dir = l.extent.and_then(|e| e.core_to_light).unwrap_or(l.to_light);
+        let own = l.extent.and_then(|e| e.core_to_light);
+        sums.any_core_dir |= own.is_some();
+        let core_dir = own.unwrap_or(l.to_light);
         let sum = &mut sums.parts;
         sum[0] += w * core_share;
         sum[1] += w * core_share * core_radius;
@@ -324,7 +326,7 @@ impl ExtentParts {
             .max(0.0) as f32,
             core_to_light: None,
         }
-        .toward(if core > EMPTY {
+        .toward(if core > EMPTY && sums.any_core_dir {
             sums.core_dir
         } else {
             DVec3::ZERO
@@ -334,11 +336,14 @@ impl ExtentParts {
 
 /// A window's sums for the extent's mixture: `parts` = [core luminance, core luminance × radius,
 /// rest luminance, rest luminance × radius] (as shares of the light's), and the core's
-/// directions weighed by the core's luminance (renormalised, as `to_light` is).
+/// directions weighed by the core's luminance (renormalised, as `to_light` is). The filtered
+/// extent has a core direction only where some frame in the window had one: a window of
+/// extents without one (a horizon-guarded core, an older producer) stays without one.
 #[derive(Default)]
 struct ExtentSums {
     parts: [f64; 4],
     core_dir: DVec3,
+    any_core_dir: bool,
 }
 
 #[cfg(test)]
@@ -521,6 +526,15 @@ mod tests {
         // A frame with no core direction: its core is the light (+Y, 0°), pulling toward it.
         let mixed = core(&f.filter(&[two_part(0.5)])[0]).x.asin().to_degrees();
         assert!(mixed < 1.5 - 1e-3 && mixed > 0.0, "{mixed}");
+        // Once no frame in the window has one, the filtered extent has none either.
+        for _ in 0..m - 1 {
+            f.filter(&[two_part(0.5)]);
+        }
+        let last = f.filter(&[two_part(0.5)])[0].extent.expect("extent");
+        assert_eq!(last.core_to_light, None);
+        let mut fresh = TemporalFilter::new(&spec);
+        let first = fresh.filter(&[two_part(0.5)])[0].extent.expect("extent");
+        assert_eq!(first.core_to_light, None);
     }
 
     /// A light whose extent goes (and comes back) fades between two discs and one: the shadow
