@@ -6,6 +6,8 @@ import type { Box3, DirectionalLight, Group, LightProbe, Object3D } from "three"
 
 /** The WebSocket subprotocol of `/v1/stream`: "vemlight.v1". */
 export declare const SUBPROTOCOL: "vemlight.v1";
+/** Degrees: how far a core direction may lie from its light for the one shadow map to be drawn from it. */
+export declare const ONE_MAP_CORE_MAX_DEG: number;
 
 export type Vec3 = [number, number, number];
 
@@ -18,6 +20,8 @@ export interface WireLight {
   angular_radius: number;
   /** Present when the stream was asked `shadowed=K`: exactly min(K, lights.length) are true. */
   shadowed?: boolean;
+  /** A two-part extent (a sun in its glow): the core's share and discs, and its own direction. */
+  extent?: { core_share: number; core_radius: number; rest_radius: number; core_to_light?: Vec3 };
 }
 
 /** The parts of a LightSet this module reads; the document has more (see the schema). */
@@ -42,6 +46,8 @@ export interface DirectionalParams {
   color: Vec3;
   intensity: number;
   angularRadius: number;
+  /** Where the shadow map is drawn from: `extent.core_to_light` within `ONE_MAP_CORE_MAX_DEG` of `direction`, else `direction`. */
+  shadowDirection: Vec3;
 }
 
 export interface Plan {

@@ -50,18 +50,41 @@ function unit(v) {
  * BRDF_Lambert = albedo/π, so color × intensity is the light's irradiance as sent. The largest
  * channel goes into `intensity` and the colour keeps the chromaticity (as the glTF export does).
  * `direction` is `to_light`: three.js lights a surface from light.position − target.position.
+ * `shadowDirection` is where the shadow map is drawn from: a two-part extent's core direction
+ * (`extent.core_to_light`, the sun itself where the light, its cell's centroid, sits a little
+ * aside: ALGORITHMS.md §12) where it lies within `ONE_MAP_CORE_MAX_DEG` of `to_light`, else
+ * `to_light`.
  */
 export function directionalParams(light) {
   const [r, g, b] = light.irradiance;
   const intensity = Math.max(r, g, b, 0);
   const color = intensity > 0 ? [r / intensity, g / intensity, b / intensity] : [1, 1, 1];
+  const direction = unit(light.to_light);
   return {
     id: light.id,
-    direction: unit(light.to_light),
+    direction,
     color,
     intensity,
     angularRadius: light.angular_radius ?? 0,
+    shadowDirection: oneMapShadowDirection(direction, light.extent?.core_to_light),
   };
+}
+
+/**
+ * How far (degrees) a core's direction may lie from its light for the one shadow map, of the
+ * light's `angular_radius`, to be drawn from the core: farther, on low suns whose cells hold much
+ * sky, moving the whole soft shadow with the core drew worse (ALGORITHMS.md §12; the daemon's
+ * renderer uses the same gate).
+ */
+export const ONE_MAP_CORE_MAX_DEG = 3;
+
+function oneMapShadowDirection(direction, core) {
+  if (!Array.isArray(core) || core.length !== 3 || !core.every(Number.isFinite)) return direction;
+  if (Math.hypot(core[0], core[1], core[2]) === 0) return direction;
+  const c = unit(core);
+  const cos = c[0] * direction[0] + c[1] * direction[1] + c[2] * direction[2];
+  const angle = Math.acos(Math.min(1, Math.max(-1, cos)));
+  return angle <= (ONE_MAP_CORE_MAX_DEG * Math.PI) / 180 ? c : direction;
 }
 
 /**
@@ -154,6 +177,7 @@ const _m = new Matrix4();
 const _v = new Vector3();
 const _size = new Vector3();
 const _corner = new Vector3();
+const _from = new Vector3();
 
 /**
  * Subscribes to a daemon's `/v1/stream` and keeps `scene` lit by it. Call `update(dt)` once a frame
@@ -338,6 +362,7 @@ export class VemlightLights {
     const a = tau > 0 ? 1 - Math.exp(-Math.max(0, dt) / tau) : 1;
     for (const s of this.slots) {
       s.dir.lerp(s.goalDir, a).normalize();
+      s.shadowDir.lerp(s.goalShadowDir, a).normalize();
       for (let c = 0; c < 3; c++) s.irr[c] += (s.goalIrr[c] - s.irr[c]) * a;
       const peak = Math.max(s.irr[0], s.irr[1], s.irr[2], 0);
       s.light.intensity = peak;
@@ -399,15 +424,26 @@ export class VemlightLights {
       light.shadow.bias = this.options.shadowBias;
       light.shadow.normalBias = this.options.shadowNormalBias;
       this.group.add(light, light.target);
-      this.slots.push({
+      const slot = {
         id: null,
         light,
         dir: new Vector3(0, 1, 0),
         goalDir: new Vector3(0, 1, 0),
+        shadowDir: new Vector3(0, 1, 0),
+        goalShadowDir: new Vector3(0, 1, 0),
+        // Where the shadow camera stands (`_fitShadow`), in the form LightShadow.updateMatrices
+        // reads a light: three.js puts the camera at the light and shades from it too, and the
+        // two differ where the light has a core direction of its own.
+        shadowFrom: { matrixWorld: new Matrix4(), target: light.target },
         irr: [0, 0, 0],
         goalIrr: [0, 0, 0],
         angularRadius: 0,
-      });
+      };
+      const updateMatrices = light.shadow.updateMatrices;
+      light.shadow.updateMatrices = function (l) {
+        updateMatrices.call(this, slot.fitted ? slot.shadowFrom : l);
+      };
+      this.slots.push(slot);
     }
   }
 
@@ -430,6 +466,7 @@ export class VemlightLights {
       if (!s) break;
       s.id = p.id;
       s.dir.fromArray(p.direction);
+      s.shadowDir.fromArray(p.shadowDirection ?? p.direction);
       s.irr = [0, 0, 0];
     }
     this._peak = 0;
@@ -437,14 +474,16 @@ export class VemlightLights {
       const p = s.id === null ? null : byId.get(s.id);
       if (!p) continue;
       s.goalDir.fromArray(p.direction);
+      s.goalShadowDir.fromArray(p.shadowDirection ?? p.direction);
       s.goalIrr = p.color.map((c) => c * p.intensity);
       s.angularRadius = p.angularRadius;
       this._peak = Math.max(this._peak, p.intensity);
     }
   }
 
-  // The light sits outside the target box toward `dir`; its orthographic shadow camera is fitted to
-  // the box's eight corners seen from there, so the map's texels cover the box and nothing else.
+  // The light sits outside the target box toward `dir`, its shadow camera toward `shadowDir`
+  // (`shadowFrom`); the orthographic camera is fitted to the box's eight corners seen from there,
+  // so the map's texels cover the box and nothing else.
   _fitShadow(s) {
     const box = this.options.target;
     if (!box || box.isEmpty()) return;
@@ -454,8 +493,11 @@ export class VemlightLights {
     s.light.target.position.copy(center);
     s.light.updateMatrixWorld();
     s.light.target.updateMatrixWorld();
+    const from = _from.copy(s.shadowDir).multiplyScalar(radius + 1).add(center);
+    s.shadowFrom.matrixWorld.makeTranslation(from.x, from.y, from.z);
+    s.fitted = true;
     const cam = s.light.shadow.camera;
-    cam.position.copy(s.light.position);
+    cam.position.copy(from);
     cam.lookAt(center);
     cam.updateMatrixWorld();
     _m.copy(cam.matrixWorld).invert();

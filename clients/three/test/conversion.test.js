@@ -11,6 +11,7 @@ import {
   VemlightLights,
   chooseShadowed,
   directionalParams,
+  ONE_MAP_CORE_MAX_DEG,
   planSet,
   remainderSh,
   setAge,
@@ -67,6 +68,11 @@ function threeLambert(plan, n, albedo = 1, probeIntensity = 1) {
 }
 
 // A deterministic sky: a bright sun and n − 1 patches spread over the upper hemisphere.
+function unitArray(v) {
+  const n = Math.hypot(...v);
+  return v.map((x) => x / n);
+}
+
 function makeSet(n = 16, { seq = 1, sunId = 3, withSh = true, nowNs = BigInt(Date.now()) * 1000000n } = {}) {
   const lights = [];
   for (let i = 0; i < n; i++) {
@@ -385,6 +391,39 @@ test("ids keep their shadow maps; a new id takes a freed slot; directions are sm
   c.update(10);
   const d2 = light.position.clone().sub(light.target.position).normalize();
   assert.ok(d2.distanceTo(goal) < 1e-6);
+  c.dispose();
+});
+
+test("a sun's core direction draws its shadow map; shading stays on to_light", () => {
+  const { c } = client({ shadowed: 1 });
+  const ws = FakeSocket.opened[0];
+  const set = makeSet(6);
+  const sun = set.lights.find((l) => l.id === 3);
+  // The light (its cell's centroid) 2° off the sun it stands for; the core is the sun.
+  const toLight = new THREE.Vector3(...sun.to_light).normalize();
+  const across = toLight.clone().cross(new THREE.Vector3(0, 1, 0)).normalize();
+  const turned = (deg) => toLight.clone().applyAxisAngle(across, (deg * Math.PI) / 180);
+  const extent = (core) => ({ core_share: 0.8, core_radius: 0.0046, rest_radius: 0.05, core_to_light: core.toArray() });
+  // Beyond the gate (a low sun's core 4–11° from a light holding much sky) the map stays on to_light.
+  sun.extent = extent(turned(ONE_MAP_CORE_MAX_DEG + 0.5));
+  assert.deepEqual(directionalParams(sun).shadowDirection, directionalParams(sun).direction);
+  const core = turned(ONE_MAP_CORE_MAX_DEG - 1);
+  sun.extent = extent(core);
+  assert.deepEqual(directionalParams(sun).shadowDirection, unitArray(core.toArray()));
+  assert.deepEqual(directionalParams(set.lights[0]).shadowDirection, directionalParams(set.lights[0]).direction);
+  ws.deliver(set);
+  c.update(10);
+  const { light } = c.shadowedLights[0];
+  const shading = light.position.clone().sub(light.target.position).normalize();
+  assert.ok(shading.distanceTo(new THREE.Vector3(...sun.to_light).normalize()) < 1e-6, "shading from to_light");
+  // What the renderer does before drawing the map: the camera then looks down the core's direction.
+  light.shadow.updateMatrices(light);
+  const look = new THREE.Vector3();
+  light.shadow.camera.getWorldDirection(look);
+  assert.ok(look.negate().distanceTo(core) < 1e-6, `shadow from the core: ${look.toArray()}`);
+  // And the shadow matrix maps the box's centre to the middle of the map.
+  const mid = c.options.target.getCenter(new THREE.Vector3()).applyMatrix4(light.shadow.matrix);
+  assert.ok(Math.abs(mid.x - 0.5) < 0.05 && Math.abs(mid.y - 0.5) < 0.05, `${mid.toArray()}`);
   c.dispose();
 });
 
