@@ -6,8 +6,8 @@ import type { Box3, DirectionalLight, Group, LightProbe, Object3D } from "three"
 
 /** The WebSocket subprotocol of `/v1/stream`: "vemlight.v1". */
 export declare const SUBPROTOCOL: "vemlight.v1";
-/** Degrees: how far a core direction may lie from its light for the one shadow map to be drawn from it. */
-export declare const ONE_MAP_CORE_MAX_DEG: number;
+/** Degrees: within `[0]` of its light a core's direction is where the one shadow map is drawn from, from `[1]` on the light's, turned part way between. */
+export declare const ONE_MAP_CORE_DEG: readonly [number, number];
 
 export type Vec3 = [number, number, number];
 
@@ -46,7 +46,7 @@ export interface DirectionalParams {
   color: Vec3;
   intensity: number;
   angularRadius: number;
-  /** Where the shadow map is drawn from: `extent.core_to_light` within `ONE_MAP_CORE_MAX_DEG` of `direction`, else `direction`. */
+  /** Where the shadow map is drawn from: `extent.core_to_light` within `ONE_MAP_CORE_DEG[0]` of `direction`, `direction` from `ONE_MAP_CORE_DEG[1]`, turned part way between. */
   shadowDirection: Vec3;
 }
 

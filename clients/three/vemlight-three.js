@@ -52,8 +52,8 @@ function unit(v) {
  * `direction` is `to_light`: three.js lights a surface from light.position − target.position.
  * `shadowDirection` is where the shadow map is drawn from: a two-part extent's core direction
  * (`extent.core_to_light`, the sun itself where the light, its cell's centroid, sits a little
- * aside: ALGORITHMS.md §12) where it lies within `ONE_MAP_CORE_MAX_DEG` of `to_light`, else
- * `to_light`.
+ * aside: ALGORITHMS.md §12) where it lies within `ONE_MAP_CORE_DEG[0]` of `to_light`, `to_light`
+ * from `ONE_MAP_CORE_DEG[1]` on, and turned part way between.
  */
 export function directionalParams(light) {
   const [r, g, b] = light.irradiance;
@@ -71,12 +71,13 @@ export function directionalParams(light) {
 }
 
 /**
- * How far (degrees) a core's direction may lie from its light for the one shadow map, of the
- * light's `angular_radius`, to be drawn from the core: farther, on low suns whose cells hold much
- * sky, moving the whole soft shadow with the core drew worse (ALGORITHMS.md §12; the daemon's
- * renderer uses the same gate).
+ * Degrees: within the first, the one shadow map (of the light's `angular_radius`) is drawn from
+ * the core's direction; from the second on, from `to_light`; between, turned from `to_light`
+ * toward the core by the share of the angle that falls linearly from 1 to 0, so a core drifting
+ * across the band moves the shadow smoothly. Farther cores (low suns whose cells hold much sky)
+ * drew worse from the core (ALGORITHMS.md §12; the daemon's renderer uses the same band).
  */
-export const ONE_MAP_CORE_MAX_DEG = 3;
+export const ONE_MAP_CORE_DEG = Object.freeze([2, 4]);
 
 function oneMapShadowDirection(direction, core) {
   if (!Array.isArray(core) || core.length !== 3 || !core.every(Number.isFinite)) return direction;
@@ -84,7 +85,14 @@ function oneMapShadowDirection(direction, core) {
   const c = unit(core);
   const cos = c[0] * direction[0] + c[1] * direction[1] + c[2] * direction[2];
   const angle = Math.acos(Math.min(1, Math.max(-1, cos)));
-  return angle <= (ONE_MAP_CORE_MAX_DEG * Math.PI) / 180 ? c : direction;
+  const [full, none] = ONE_MAP_CORE_DEG.map((d) => (d * Math.PI) / 180);
+  const share = Math.min(1, Math.max(0, (none - angle) / (none - full)));
+  if (share >= 1) return c;
+  if (share <= 0) return direction;
+  // Turned by share · angle in the plane of the two.
+  const across = unit([c[0] - direction[0] * cos, c[1] - direction[1] * cos, c[2] - direction[2] * cos]);
+  const t = share * angle;
+  return unit([0, 1, 2].map((i) => direction[i] * Math.cos(t) + across[i] * Math.sin(t)));
 }
 
 /**

@@ -57,24 +57,42 @@ impl Light {
     }
 
     /// Where a client with one shadow map for this light draws it from: the extent's core
-    /// direction when it lies within [`ONE_MAP_CORE_MAX_DEG`] of `to_light`, else `to_light`
-    /// (ALGORITHMS.md §12, "Two-part extent"). Shading stays n·`to_light` either way.
+    /// direction when it lies within [`ONE_MAP_CORE_DEG`]`.0` of `to_light`, `to_light` from
+    /// [`ONE_MAP_CORE_DEG`]`.1` on, and between them turned from `to_light` toward the core by
+    /// the share of the angle that falls linearly from 1 to 0 (ALGORITHMS.md §12, "Two-part
+    /// extent"). Continuous in the core's direction, so a core drifting across the band moves
+    /// the shadow smoothly instead of switching it degrees in one frame. Shading stays
+    /// n·`to_light` either way.
     pub fn one_map_shadow_dir(&self) -> DVec3 {
         let to_light = self.dir().normalize_or(DVec3::Y);
-        self.extent
-            .and_then(|e| e.core_dir())
-            .filter(|core| core.angle_between(to_light) <= ONE_MAP_CORE_MAX_DEG.to_radians())
-            .unwrap_or(to_light)
+        let Some(core) = self.extent.and_then(|e| e.core_dir()) else {
+            return to_light;
+        };
+        let (full, none) = (
+            ONE_MAP_CORE_DEG.0.to_radians(),
+            ONE_MAP_CORE_DEG.1.to_radians(),
+        );
+        let angle = core.angle_between(to_light);
+        let share = ((none - angle) / (none - full)).clamp(0.0, 1.0);
+        if share >= 1.0 {
+            return core;
+        }
+        // Turned by share · angle in the plane of the two (none where they are opposite).
+        let across = (core - to_light * to_light.dot(core)).normalize_or_zero();
+        let turn = share * angle;
+        (to_light * turn.cos() + across * turn.sin()).normalize_or(to_light)
     }
 }
 
-/// How far (degrees) a core's direction may lie from its light for one shadow map drawn from
-/// the core to stand for both discs. Drawn so, the rest's disc is drawn about the core too: on
-/// low suns, whose cells hold much sky, the core lies 4–11° from the light and the rest's soft
-/// shadow moved that far made the shadowed error worse (the 2° hazy sun at 16 lights 1.08 →
-/// 1.61 × median cut's); within 3° it was better or within noise on every one of the 72 skies
-/// (EVALUATION.md, "The core's own direction").
-pub const ONE_MAP_CORE_MAX_DEG: f64 = 3.0;
+/// Degrees: how far a core's direction may lie from its light for one shadow map drawn from the
+/// core to stand for both discs (`.0`), and from where the light's own direction is drawn
+/// (`.1`); between, [`Light::one_map_shadow_dir`] turns part way. Drawn from the core, the rest's
+/// disc is drawn about the core too: on low suns, whose cells hold much sky, the core lies 4–11°
+/// from the light and the rest's soft shadow moved that far made the shadowed error worse (the
+/// 2° hazy sun at 16 lights 1.08 → 1.61 × median cut's); every core within 2.6° drew better or
+/// within noise on the 72 skies, and the band drew as well as a cut at 3° (EVALUATION.md, "The
+/// core's own direction").
+pub const ONE_MAP_CORE_DEG: (f64, f64) = (2.0, 4.0);
 
 /// A light's two-part extent (ALGORITHMS.md §12, "Two-part extent"): a share of its luminance
 /// in a compact core's disc about the core's own direction and the rest in a wider disc about
@@ -541,12 +559,39 @@ mod tests {
             shadowed: None,
         };
         assert_eq!(light.one_map_shadow_dir(), DVec3::Y, "no extent");
-        for (deg, own) in [(2.9, true), (3.1, false)] {
-            let t = f64::to_radians(deg);
+        // The core's own within 2°, the light's from 4°, and between turned part way in the
+        // plane of the two: the angle from the light is a·(4° − a)/2°, continuous, so a core
+        // moving 0.01° moves the map's direction by at most 0.02° (the slope at 4° is −2).
+        let (full, none) = ONE_MAP_CORE_DEG;
+        let mut last: Option<DVec3> = None;
+        for step in 0..=600 {
+            let deg = step as f64 * 0.01;
+            let t = deg.to_radians();
             let core = DVec3::new(t.sin(), t.cos(), 0.0);
             light.extent = Some(e.toward(core));
-            let want = if own { core } else { DVec3::Y };
-            assert!(light.one_map_shadow_dir().abs_diff_eq(want, 1e-6), "{deg}°");
+            let got = light.one_map_shadow_dir();
+            let share = ((none - deg) / (none - full)).clamp(0.0, 1.0);
+            let want_deg = deg * share;
+            let got_deg = got.angle_between(DVec3::Y).to_degrees();
+            assert!(
+                (got_deg - want_deg).abs() < 1e-4,
+                "{deg}°: {got_deg}° from the light"
+            );
+            assert!(
+                got.z.abs() < 1e-9 && got.x >= 0.0,
+                "{deg}°: in the plane, toward the core"
+            );
+            if deg <= full {
+                assert!(got.abs_diff_eq(core, 1e-6), "{deg}°: the core's own");
+            }
+            if deg >= none {
+                assert!(got.abs_diff_eq(DVec3::Y, 1e-6), "{deg}°: the light's own");
+            }
+            if let Some(prev) = last {
+                let jump = got.angle_between(prev).to_degrees();
+                assert!(jump <= 0.02 + 1e-6, "{deg}°: jumped {jump}°");
+            }
+            last = Some(got);
         }
         assert_eq!(extent(1.0, rh), None, "a lone core");
         assert_eq!(extent(0.995, rh), None, "a sliver of rest");

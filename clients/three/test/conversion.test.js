@@ -11,7 +11,7 @@ import {
   VemlightLights,
   chooseShadowed,
   directionalParams,
-  ONE_MAP_CORE_MAX_DEG,
+  ONE_MAP_CORE_DEG,
   planSet,
   remainderSh,
   setAge,
@@ -399,15 +399,32 @@ test("a sun's core direction draws its shadow map; shading stays on to_light", (
   const ws = FakeSocket.opened[0];
   const set = makeSet(6);
   const sun = set.lights.find((l) => l.id === 3);
-  // The light (its cell's centroid) 2° off the sun it stands for; the core is the sun.
+  // The light (its cell's centroid) 1° off the sun it stands for; the core is the sun.
   const toLight = new THREE.Vector3(...sun.to_light).normalize();
   const across = toLight.clone().cross(new THREE.Vector3(0, 1, 0)).normalize();
   const turned = (deg) => toLight.clone().applyAxisAngle(across, (deg * Math.PI) / 180);
   const extent = (core) => ({ core_share: 0.8, core_radius: 0.0046, rest_radius: 0.05, core_to_light: core.toArray() });
-  // Beyond the gate (a low sun's core 4–11° from a light holding much sky) the map stays on to_light.
-  sun.extent = extent(turned(ONE_MAP_CORE_MAX_DEG + 0.5));
+  // Beyond the band (a low sun's core 4–11° from a light holding much sky) the map stays on
+  // to_light; within it, the core's own; between, turned a·(4° − a)/2° from the light toward the
+  // core, so a core moving 0.01° moves the map by at most 0.02° (no switch).
+  const [full, none] = ONE_MAP_CORE_DEG;
+  const angleDeg = (a, b) => new THREE.Vector3(...a).angleTo(new THREE.Vector3(...b)) * (180 / Math.PI);
+  let last = null;
+  for (let step = 0; step <= 600; step++) {
+    const deg = step / 100;
+    const core = turned(deg);
+    sun.extent = extent(core);
+    const p = directionalParams(sun);
+    const share = Math.min(1, Math.max(0, (none - deg) / (none - full)));
+    const fromLight = angleDeg(p.shadowDirection, p.direction);
+    assert.ok(Math.abs(fromLight - deg * share) < 1e-4, `${deg}°: ${fromLight}° from the light`);
+    assert.ok(Math.abs(angleDeg(p.shadowDirection, core.toArray()) - deg * (1 - share)) < 1e-4, `${deg}°: toward the core`);
+    if (last) assert.ok(angleDeg(p.shadowDirection, last) <= 0.02 + 1e-6, `${deg}°: jumped`);
+    last = p.shadowDirection;
+  }
+  sun.extent = extent(turned(none + 0.5));
   assert.deepEqual(directionalParams(sun).shadowDirection, directionalParams(sun).direction);
-  const core = turned(ONE_MAP_CORE_MAX_DEG - 1);
+  const core = turned(full - 1);
   sun.extent = extent(core);
   assert.deepEqual(directionalParams(sun).shadowDirection, unitArray(core.toArray()));
   assert.deepEqual(directionalParams(set.lights[0]).shadowDirection, directionalParams(set.lights[0]).direction);
