@@ -77,7 +77,7 @@ impl Light {
         if share >= 1.0 {
             return core;
         }
-        // Turned by share · angle in the plane of the two (none where they are opposite).
+        // Turned by share · angle in the plane of the two (here under 4° apart).
         let across = (core - to_light * to_light.dot(core)).normalize_or_zero();
         let turn = share * angle;
         (to_light * turn.cos() + across * turn.sin()).normalize_or(to_light)
