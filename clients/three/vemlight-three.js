@@ -443,6 +443,8 @@ export class VemlightLights {
         // reads a light: three.js puts the camera at the light and shades from it too, and the
         // two differ where the light has a core direction of its own.
         shadowFrom: { matrixWorld: new Matrix4(), target: light.target },
+        // Whether `_fitShadow` has placed `shadowFrom` (until then the light itself stands in).
+        fitted: false,
         irr: [0, 0, 0],
         goalIrr: [0, 0, 0],
         angularRadius: 0,
