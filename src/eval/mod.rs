@@ -6,6 +6,7 @@
 //! markers. Speed figures are medians, because these machines are noisy.
 
 pub mod accuracy;
+pub mod between;
 pub mod budget;
 pub mod charts;
 pub mod per_map;
@@ -53,6 +54,8 @@ pub const ROTATION_DEG_PER_FRAME: f64 = 0.25;
 
 struct Plan {
     counts: Vec<usize>,
+    /// Counts between the powers of two ([`between`]).
+    between: Vec<usize>,
     reps: usize,
     frames: usize,
 }
@@ -63,12 +66,14 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
     let plan = if opts.quick {
         Plan {
             counts: vec![16, 64, 256],
+            between: between::QUICK_BETWEEN_COUNTS.to_vec(),
             reps: 1,
             frames: 16,
         }
     } else {
         Plan {
             counts: COUNTS.to_vec(),
+            between: between::BETWEEN_COUNTS.to_vec(),
             reps: 5,
             frames: 96,
         }
@@ -92,7 +97,7 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
     let sequences = 3 + 2 * maps.len();
     let hard = stability::hard_cases();
     let total =
-        (maps.len() * domains.len() * methods + sequences * plan.frames + hard.len()) as u64;
+        (maps.len() * (domains.len() * methods + 1) + sequences * plan.frames + hard.len()) as u64;
     let bar = ProgressBar::new(total);
     bar.set_style(
         ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} {msg}")
@@ -148,7 +153,6 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
     write(&opts.out.join("accuracy.md"), &accuracy_md)?;
     let per_map_md = per_map::markdown(&rows);
     write(&opts.out.join("per_map.md"), &per_map_md)?;
-    let accuracy_s = started.elapsed().as_secs_f64();
 
     // 1b. The placement frontier of the default method (diffuse against shadowed).
     bar.set_message("placement frontier");
@@ -204,6 +208,21 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
         budget::adaptive_markdown(&adaptive_rows)
     );
     write(&opts.out.join("budget.md"), &budget_md)?;
+
+    // 1d. The targets at counts between the powers of two.
+    let mut between_rows = Vec::new();
+    for ((name, map), truth) in maps.iter().zip(&sphere_truths) {
+        bar.set_message(format!("counts between: {name}"));
+        between_rows.extend(between::evaluate_map(name, map, truth, &plan.between));
+        bar.inc(1);
+    }
+    write(
+        &opts.out.join("between.csv"),
+        &between::to_csv(&between_rows),
+    )?;
+    let between_md = between::markdown(&between_rows);
+    write(&opts.out.join("between.md"), &between_md)?;
+    let accuracy_s = started.elapsed().as_secs_f64();
 
     // 2. Temporal stability.
     let t_temporal = Instant::now();
@@ -275,6 +294,7 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
         for (name, body) in [
             ("accuracy", &accuracy_md),
             ("per-map", &per_map_md),
+            ("between", &between_md),
             ("frontier", &frontier_md),
             ("budget", &budget_md),
             ("temporal", &temporal_md),
@@ -286,7 +306,7 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
         write(doc, &text)?;
     }
     Ok(format!(
-        "{accuracy_md}\n{per_map_md}\n{frontier_md}\n{budget_md}\n{temporal_md}\n{run_md}"
+        "{accuracy_md}\n{per_map_md}\n{between_md}\n{frontier_md}\n{budget_md}\n{temporal_md}\n{run_md}"
     ))
 }
 

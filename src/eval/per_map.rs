@@ -301,7 +301,7 @@ pub fn by_placement(rows: &[FrontierRow]) -> Vec<(Placement, Vec<&FrontierRow>)>
 
 pub fn frontier_markdown(rows: &[FrontierRow]) -> String {
     let mut s = String::from(
-        "Default method with one start (the default takes four up to 32 lights, Y^⅜ to Y^¾, three from 33 to 64, Y^½ to Y¹, and three from 65 to 128, Y^⅝ to Y^⅞: ALGORITHMS.md §4.2), whole sphere, every map and N of the sweep; worst map first, median after. Diffuse ÷ k-means (target ≤ 1.25), shadowed ÷ median cut (target ≤ 1).\n\n| exponent | cap (seeds/texel) | uniform share | worst diffuse ÷ k-means | median | worst shadowed ÷ median cut | median |\n|---|---|---|---|---|---|---|\n",
+        "Default method with one start (the default takes four up to 32 lights, Y^⅜ to Y^¾, three from 33 to 64, Y^½ to Y¹, and three from 65 to 192, Y^⅝ to Y^⅞: ALGORITHMS.md §4.2), whole sphere, every map and N of the sweep; worst map first, median after. Diffuse ÷ k-means (target ≤ 1.25), shadowed ÷ median cut (target ≤ 1).\n\n| exponent | cap (seeds/texel) | uniform share | worst diffuse ÷ k-means | median | worst shadowed ÷ median cut | median |\n|---|---|---|---|---|---|---|\n",
     );
     for (p, rs) in by_placement(rows) {
         let ((wd, wdm), (ws, wsm)) = worst_of(&rs);
