@@ -17,7 +17,7 @@ pub struct ExtractionArgs {
     #[arg(long, value_enum)]
     pub domain: Option<Domain>,
     /// Extra Lloyd steps of the voronoi method (more accurate, one assignment pass each; a single
-    /// map of 65 to 128 lights takes twice as many).
+    /// map of 65 to 192 lights takes twice as many).
     #[arg(long, default_value_t = vemlight_default_refine(), value_parser = clap::value_parser!(u8).range(0..=8))]
     pub refine: u8,
 }

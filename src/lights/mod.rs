@@ -831,7 +831,7 @@ impl Extractor {
     /// assignment, re-seed each light at its centroid and assign again, `steps` times. Each step
     /// costs one more assignment pass; two is the fewest with which the diffuse error is at most
     /// median cut's at every N ≥ 16 (docs/EVALUATION.md, docs/PERFORMANCE.md). A single map of 65
-    /// to 128 lights takes twice as many (`STEPS_FACTOR`).
+    /// to 192 lights takes twice as many (`STEPS_FACTOR`).
     pub fn set_refine(&mut self, steps: usize) {
         self.refine = steps.min(8);
     }
