@@ -20,6 +20,18 @@ use std::time::Instant;
 /// Light counts of the charts: 8 … 1024, powers of two.
 pub const COUNTS: [usize; 8] = [8, 16, 32, 64, 128, 256, 512, 1024];
 
+/// `a` over the anchor `b`, as every table's ratios are given: 1 where both are 0 (a black map,
+/// a still sequence), ∞ where only the anchor is.
+pub fn ratio(a: f64, b: f64) -> f64 {
+    if b > 0.0 {
+        a / b
+    } else if a > 0.0 {
+        f64::INFINITY
+    } else {
+        1.0
+    }
+}
+
 /// The name of the SH reference line in tables and charts.
 pub const SH_NAME: &str = "sh-l2";
 
@@ -251,4 +263,16 @@ pub fn spread(
         min,
         max,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_black_map_meets_the_ratios() {
+        assert_eq!(ratio(0.0, 0.0), 1.0);
+        assert_eq!(ratio(1.0, 0.0), f64::INFINITY);
+        assert_eq!(ratio(1.0, 2.0), 0.5);
+    }
 }

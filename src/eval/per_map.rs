@@ -67,13 +67,7 @@ pub fn markdown(rows: &[AccuracyRow]) -> String {
     let ratio = |m: &str, method: Method, n: usize| {
         let k = row(rows, m, Method::KMeans, n)?.diffuse.rel_rms;
         let v = row(rows, m, method, n)?.diffuse.rel_rms;
-        Some(if k > 0.0 {
-            v / k
-        } else if v > 0.0 {
-            f64::INFINITY
-        } else {
-            1.0
-        })
+        Some(super::accuracy::ratio(v, k))
     };
     let shadowed = |m: &str, method: Method, n: usize| row(rows, m, method, n)?.shadowed_mean();
     let mut s = String::new();

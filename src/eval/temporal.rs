@@ -27,7 +27,7 @@
 //! for diffuse irradiance), at [`TEMPORAL_NORMALS`] Fibonacci normals — fewer than the accuracy
 //! part's 256, to keep the whole evaluation within its time budget.
 
-use super::accuracy::SH_NAME;
+use super::accuracy::{SH_NAME, ratio};
 use super::scenes::angle_deg;
 use crate::envmap::{EnvMap, luminance64};
 use crate::lights::error::fibonacci_sphere;
@@ -355,14 +355,7 @@ pub fn flicker_ratio(series: &[Vec<f64>], truth: &[Vec<f64>]) -> f64 {
             })
             .sum()
     };
-    let (num, den) = (tv(series), tv(truth));
-    if den > 0.0 {
-        num / den
-    } else if num > 0.0 {
-        f64::INFINITY
-    } else {
-        1.0
-    }
+    ratio(tv(series), tv(truth))
 }
 
 /// Mean over frames t ≥ lag of the relative RMS of series(t) against truth(t − lag).
