@@ -372,11 +372,12 @@ fn other_starts(n: usize) -> &'static [f32] {
 const STEPS_FACTOR: usize = 2;
 /// The most lights that take the starts of [`STEPS_START_EXPONENTS`] and [`STEPS_FACTOR`] times
 /// the steps: the 48² estimate that chooses between them has at least 12 bins a light up to here
-/// (18 at 128). Measured at 128 first; at 129 and 192 lights, where a lone Y^⅞ start was the rule,
-/// studio.exr was 1.60 and 1.45 × the k-means floor and a held-out warehouse 1.34 × at 129; with
-/// the three starts the worst of the 13 maps and the 18 held out went to 1.10 and 1.13 × (EVALUATION.md,
-/// "Counts between the powers of two"). At 256 (9 bins a light) the estimate chose starts that
-/// were worse in truth (a low hazy sun 0.65 → 0.95 ×), so above this a single map keeps one start.
+/// (18 at 128). Measured at 128 first; at 129 and 192 lights, where a lone Y^⅞ start was the
+/// rule, studio.exr was 1.60 and 1.45 × the k-means floor and a held-out warehouse 1.34 × at 129;
+/// with the three starts the worst of the 13 maps and the 18 held out went to 1.10 and 1.13 ×
+/// (EVALUATION.md, "Counts between the powers of two"). At 256 (9 bins a light) the estimate
+/// chose starts that were worse in truth (a low hazy sun 0.65 → 0.95 ×), so above this a single
+/// map keeps one start.
 const STEPS_MAX_LIGHTS: usize = WIDE_CHECK_GRID * WIDE_CHECK_GRID / 12;
 
 /// A single map of more lights than this splits its brightest cell (ALGORITHMS.md §4.2,
@@ -505,9 +506,9 @@ impl Default for Placement {
 impl Placement {
     /// A single map's placement for `n` lights (ALGORITHMS.md §4.1, "By count"): the default up
     /// to [`MORE_STARTS_MAX_LIGHTS`], where four starts choose among exponents; Y^¾ without the
-    /// uniform share up to `STEPS_MAX_LIGHTS` (192, with two more starts above 64), and Y^⅞ above. With more lights a steeper density does better: on
-    /// the 13 maps as they are and turned three ways, the geometric mean ratio to the k-means
-    /// floor went 0.99 → 0.95 at 64 lights, 0.93 → 0.83 at 128 and 0.97 → 0.76 at 256, the worst
+    /// uniform share up to `STEPS_MAX_LIGHTS` (192, with two more starts above 64), and Y^⅞
+    /// above. With more lights a steeper density does better: on the 13 maps as they are and
+    /// turned three ways, the geometric mean ratio to the k-means floor went 0.99 → 0.95 at 64 lights, 0.93 → 0.83 at 128 and 0.97 → 0.76 at 256, the worst
     /// 1.17 → 1.13, 1.21 → 1.19 and 1.33 → 1.05, and the worst shadowed ratio at 64 from 1.82 to
     /// 1.34 × median cut's, at 256 from 1.41 to 1.03 (docs/EVALUATION.md "By count"). The uniform
     /// share bounds how fast a seed crosses a dark region between frames; a single map has none.
