@@ -352,6 +352,15 @@ impl EnvMap {
     /// The radiance this map sees along a world direction (nearest pixel); 0 outside a fisheye's
     /// circle or below a hemisphere square.
     pub fn radiance_along(&self, dir: DVec3) -> [f32; 3] {
+        match self.pixel_along(dir) {
+            Some((i, j)) => self.pixels[j * self.width + i],
+            None => [0.0; 3],
+        }
+    }
+
+    /// The pixel (column, row) that sees direction `dir` (nearest pixel), or `None` outside a
+    /// fisheye's image circle.
+    pub fn pixel_along(&self, dir: DVec3) -> Option<(usize, usize)> {
         let (w, h) = (self.width as f64, self.height as f64);
         let pixel = match self.projection {
             Projection::LatLong => {
@@ -390,14 +399,12 @@ impl EnvMap {
                 })
             }
         };
-        match pixel {
-            Some((i, j)) => {
-                let i = i.clamp(0, self.width as i64 - 1) as usize;
-                let j = j.clamp(0, self.height as i64 - 1) as usize;
-                self.pixels[j * self.width + i]
-            }
-            None => [0.0; 3],
-        }
+        pixel.map(|(i, j)| {
+            (
+                i.clamp(0, self.width as i64 - 1) as usize,
+                j.clamp(0, self.height as i64 - 1) as usize,
+            )
+        })
     }
 
     /// This map seen through another projection (nearest-pixel lookup), e.g. a real lat-long map

@@ -25,7 +25,8 @@ pub struct Light {
     /// Where one disc draws a source poorly (a sun in a wider glow): the light's luminance as a
     /// compact core about its own direction and a wider rest about `to_light` (ALGORITHMS.md §12,
     /// "Two-part extent"). A client that draws one disc uses `angular_radius`; absent where one
-    /// disc is enough.
+    /// disc is enough, unless that disc casts its shadow from the sun rather than `to_light`
+    /// (§12, "Shadow direction": share 0.999, both discs `angular_radius`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extent: Option<LightExtent>,
     /// With a client's shadow budget (`shadowed=K`, see [`super::budget`]): whether this light is

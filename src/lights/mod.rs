@@ -21,6 +21,7 @@ mod light;
 pub mod median_cut;
 pub mod sh;
 pub mod shadow;
+pub mod sun_shadow;
 mod tilt;
 pub mod vmlps;
 
@@ -259,6 +260,9 @@ pub struct Extractor {
     /// Whether a single map's compact cores' lights turn in azimuth onto their core
     /// ([`Extractor::set_core_azimuth`]).
     core_azimuth: bool,
+    /// Whether a single map's sun casts its shadow from the source pixels
+    /// ([`Extractor::set_sun_shadow`]).
+    sun_shadow: bool,
 }
 
 /// How far a light of the default method may move in one frame of video mode (ALGORITHMS.md
@@ -819,6 +823,7 @@ impl Default for Extractor {
             tilt: true,
             core_split: true,
             core_azimuth: true,
+            sun_shadow: true,
         }
     }
 }
@@ -880,6 +885,13 @@ impl Extractor {
     /// (ALGORITHMS.md §4.2, "Core azimuth"; default on, up to 32 lights). Streams turn none.
     pub fn set_core_azimuth(&mut self, on: bool) {
         self.core_azimuth = on;
+    }
+
+    /// Whether a single map's brightest compact light casts its shadow from the centroid of the
+    /// source pixels around it, carried in its extent's core ([`sun_shadow`]; ALGORITHMS.md §12,
+    /// "Shadow direction"; default on). Streams keep their lights' own directions.
+    pub fn set_sun_shadow(&mut self, on: bool) {
+        self.sun_shadow = on;
     }
 
     /// Video mode, for a stream of frames of one scene (the daemon, the temporal evaluation): the
@@ -1044,7 +1056,10 @@ impl Extractor {
                     self.warp_seeds(map, image, req.method, n);
                     timings.warp_s = t.elapsed().as_secs_f64();
                     let t = Instant::now();
-                    let l = self.assign_seeds(image, req.method);
+                    let mut l = self.assign_seeds(image, req.method);
+                    if self.sun_shadow && self.seed_origin == SeedOrigin::Warp {
+                        sun_shadow::aim_sun_shadow(map, &mut l);
+                    }
                     timings.assign_s = t.elapsed().as_secs_f64();
                     l
                 } else {
