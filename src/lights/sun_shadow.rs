@@ -63,26 +63,31 @@ pub fn aim_sun_shadow(map: &EnvMap, lights: &mut [Light]) {
     });
 }
 
+/// How far the centre may move from where the pixels were gathered before they are gathered
+/// again: the light starts a tenth of a degree or two off the sun.
+const MARGIN: f64 = 1.0 * std::f64::consts::PI / 180.0;
+
 /// The luminance-weighted centroid of `map`'s pixels above the horizon within `radius` of
 /// `start`, re-centred [`ITERATIONS`] times, and their luminance × sr; `None` where none is lit.
 pub fn centroid_near(map: &EnvMap, start: DVec3, radius: f64) -> Option<(DVec3, f64)> {
     let cos_r = radius.cos();
     let mut centre = start.normalize();
+    // The lit pixels within `radius` + MARGIN of `anchor` (direction, luminance × sr), so that
+    // the re-centred windows are dot products over one gathered list.
+    let mut anchor = centre;
+    let mut lit = lit_pixels_near(map, anchor, radius + MARGIN);
     let mut energy = 0.0;
     for _ in 0..ITERATIONS {
+        if centre.dot(anchor) < MARGIN.cos() {
+            anchor = centre;
+            lit = lit_pixels_near(map, anchor, radius + MARGIN);
+        }
         let mut moment = DVec3::ZERO;
         energy = 0.0;
-        for (i, j) in window(map, centre, radius) {
-            let Some((dir, sr)) = map.projection.pixel(i, j, map.width, map.height) else {
-                continue;
-            };
-            if dir.y <= 0.0 || dir.dot(centre) <= cos_r {
-                continue;
-            }
-            let y = EnvMap::luminance(map.pixels[j * map.width + i]) as f64;
-            if y > 0.0 && y.is_finite() {
-                moment += dir * (y * sr);
-                energy += y * sr;
+        for &(dir, e) in &lit {
+            if dir.dot(centre) > cos_r {
+                moment += dir * e;
+                energy += e;
             }
         }
         centre = moment.try_normalize()?;
@@ -90,20 +95,29 @@ pub fn centroid_near(map: &EnvMap, start: DVec3, radius: f64) -> Option<(DVec3, 
     Some((centre, energy))
 }
 
-/// The pixels that may lie within `radius` of `centre`: on a lat-long map a band of rows, and of
-/// columns away from the poles; otherwise a square about the pixel that sees `centre`, twice as
-/// wide as `radius` in that pixel's own size (a fisheye's pixels grow up to π/2 times wider
-/// toward its rim).
-fn window(map: &EnvMap, centre: DVec3, radius: f64) -> impl Iterator<Item = (usize, usize)> {
+/// `map`'s lit pixels above the horizon within `radius` of `centre`: (direction, luminance × sr).
+fn lit_pixels_near(map: &EnvMap, centre: DVec3, radius: f64) -> Vec<(DVec3, f64)> {
     use std::f64::consts::PI;
+    let cos_r = radius.cos();
     let (w, h) = (map.width, map.height);
-    let (rows, cols): (std::ops::Range<usize>, Vec<usize>) = match map.projection {
+    let mut out = Vec::new();
+    let mut take = |i: usize, j: usize, dir: DVec3, sr: f64| {
+        if dir.y > 0.0 && dir.dot(centre) > cos_r {
+            let y = EnvMap::luminance(map.pixels[j * w + i]) as f64;
+            if y > 0.0 && y.is_finite() {
+                out.push((dir, y * sr));
+            }
+        }
+    };
+    match map.projection {
         Projection::LatLong => {
+            // A band of rows, and of columns away from the poles; each row's and column's
+            // sines and cosines taken once (the same values as `Projection::pixel`).
             let theta = centre.y.clamp(-1.0, 1.0).acos();
             let row = |t: f64| ((t / PI * h as f64).floor().max(0.0) as usize).min(h);
             let rows = row(theta - radius)..(row(theta + radius) + 1).min(h);
             let near_pole = theta - radius <= 0.0 || theta + radius >= PI;
-            let cols = if near_pole {
+            let cols: Vec<usize> = if near_pole {
                 (0..w).collect()
             } else {
                 // The widest span of longitude within the band: at its row nearest a pole.
@@ -118,28 +132,46 @@ fn window(map: &EnvMap, centre: DVec3, radius: f64) -> impl Iterator<Item = (usi
                     (lo..=hi).map(|c| c.rem_euclid(w as i64) as usize).collect()
                 }
             };
-            (rows, cols)
-        }
-        _ => match map.pixel_along(centre) {
-            Some((i, j)) => {
-                let size = map
-                    .projection
-                    .pixel(i, j, w, h)
-                    .map_or(0.0, |(_, sr)| sr.sqrt());
-                let half = if size > 0.0 {
-                    (2.0 * radius / size).ceil() as usize + 2
-                } else {
-                    w.max(h)
-                };
-                (
-                    j.saturating_sub(half)..(j + half + 1).min(h),
-                    (i.saturating_sub(half)..(i + half + 1).min(w)).collect(),
-                )
+            let col_sc: Vec<(f64, f64)> = cols
+                .iter()
+                .map(|&i| (2.0 * PI * ((i as f64 + 0.5) / w as f64 - 0.5)).sin_cos())
+                .collect();
+            for j in rows {
+                let (st, ct) = (PI * (j as f64 + 0.5) / h as f64).sin_cos();
+                let t0 = PI * j as f64 / h as f64;
+                let t1 = PI * (j + 1) as f64 / h as f64;
+                let sr = 2.0 * PI / w as f64 * (t0.cos() - t1.cos());
+                for (&i, &(sp, cp)) in cols.iter().zip(&col_sc) {
+                    take(i, j, DVec3::new(st * sp, ct, -st * cp), sr);
+                }
             }
-            None => (0..0, Vec::new()),
-        },
-    };
-    rows.flat_map(move |j| cols.clone().into_iter().map(move |i| (i, j)))
+        }
+        _ => {
+            // A square about the pixel that sees `centre`, 1.5 times as wide as `radius` in
+            // that pixel's own size (its geometric mean): a fisheye's pixels are at most √2
+            // (equisolid) or π/2 (equidistant, 1.25 × the mean) times longer one way.
+            let Some((ci, cj)) = map.pixel_along(centre) else {
+                return out;
+            };
+            let size = map
+                .projection
+                .pixel(ci, cj, w, h)
+                .map_or(0.0, |(_, sr)| sr.sqrt());
+            let half = if size > 0.0 {
+                (1.5 * radius / size).ceil() as usize + 2
+            } else {
+                w.max(h)
+            };
+            for j in cj.saturating_sub(half)..(cj + half + 1).min(h) {
+                for i in ci.saturating_sub(half)..(ci + half + 1).min(w) {
+                    if let Some((dir, sr)) = map.projection.pixel(i, j, w, h) {
+                        take(i, j, dir, sr);
+                    }
+                }
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]
