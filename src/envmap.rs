@@ -359,7 +359,7 @@ impl EnvMap {
     }
 
     /// The pixel (column, row) that sees direction `dir` (nearest pixel), or `None` outside a
-    /// fisheye's image circle.
+    /// fisheye's image circle or below a hemisphere square.
     pub fn pixel_along(&self, dir: DVec3) -> Option<(usize, usize)> {
         let (w, h) = (self.width as f64, self.height as f64);
         let pixel = match self.projection {
