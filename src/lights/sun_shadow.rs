@@ -8,7 +8,7 @@
 //! pixels within [`RADIUS_DEG`] of the light. Shading keeps the light's own direction, so the
 //! diffuse error is untouched; the shadow direction rides in the two-part extent's core (§12).
 
-use super::{Light, LightExtent};
+use super::light::{Light, LightExtent};
 use crate::envmap::{EnvMap, Projection};
 use glam::DVec3;
 
