@@ -240,6 +240,9 @@ pub struct Extractor {
     /// Lloyd steps from the previous frame's lights of the same count, domain and side.
     video: bool,
     previous: HashMap<(usize, Domain, usize), Vec<Vec3>>,
+    /// Each light's tilt in the previous frame of a stream, as its elevation's change (radians),
+    /// by the same key as `previous`.
+    previous_tilt: HashMap<(usize, Domain, usize), StreamTilt>,
     /// Where `warp_seeds` took the current seeds from (it decides the Lloyd steps).
     seed_origin: SeedOrigin,
     /// How far a light may move in one frame of video mode.
@@ -263,6 +266,11 @@ pub struct Extractor {
     /// Whether a single map's sun casts its shadow from the source pixels
     /// ([`Extractor::set_sun_shadow`]).
     sun_shadow: bool,
+    /// Whether a stream's lights are tilted as a single map's are ([`Extractor::set_stream_tilt`]).
+    stream_tilt: bool,
+    /// A stream frame's lights before the tilt, which the next frame starts from (the tilt is
+    /// what a client is given, not where the cells are tracked).
+    untilted: Option<Vec<Vec3>>,
 }
 
 /// How far a light of the default method may move in one frame of video mode (ALGORITHMS.md
@@ -477,6 +485,50 @@ fn check_reference_at(image: &DomainImage, grid: usize) -> IrradianceReference {
 /// frames carry on from it, and with only the usual two steps the first frames' lights still
 /// travel 5–17° a frame toward the fixed point.
 pub const VIDEO_START_STEPS: usize = 32;
+
+/// How far a stream light's tilt may change in one frame (ALGORITHMS.md §4.3, "Tilt in a
+/// stream"): the fraction a single map takes is chosen in eighths, and from one frame to the
+/// next it may jump an eighth or switch between descending and rising.
+pub const STREAM_TILT_STEP_DEG: f32 = 0.5;
+
+/// How many frames of a stream take the tilt's fraction chosen in the first of them (ALGORITHMS.md
+/// §4.3, "Tilt in a stream"): choosing it takes the binned estimate, the larger part of the
+/// tilt's cost, and the step limit lets a light's tilt change only slowly anyway.
+pub const STREAM_TILT_CHOOSE_EVERY: u32 = 8;
+
+/// The fraction of the way a set tilted (ALGORITHMS.md §4.2, "Tilt"), which way, whether it was
+/// chosen on the estimate (not taken from an earlier frame), the map's floor as a share of its
+/// energy, and whether a stream must choose afresh next frame (its lights turned the other way).
+#[derive(Clone, Copy, Debug)]
+struct TiltChoice {
+    fraction: f64,
+    descending: bool,
+    fresh: bool,
+    floor_share: f64,
+    expired: bool,
+}
+
+/// A stream's tilt in its last frame: each light's, as its elevation's change (radians), the
+/// fraction the set took, and how many frames that fraction has served.
+struct StreamTilt {
+    tilts: Vec<f32>,
+    choice: Option<TiltChoice>,
+    age: u32,
+}
+
+/// The elevation of a unit direction above the horizon, radians.
+fn elevation(d: Vec3) -> f32 {
+    d.y.clamp(-1.0, 1.0).asin()
+}
+
+/// `d` at elevation `e` (radians), its azimuth kept; a direction without one (a pole) as it is.
+fn at_elevation(d: Vec3, e: f32) -> Vec3 {
+    let Some(h) = glam::Vec2::new(d.x, d.z).try_normalize() else {
+        return d;
+    };
+    let (s, c) = e.sin_cos();
+    Vec3::new(h.x * c, s, h.y * c)
+}
 
 /// How the default method turns luminance into the density its progressive points are warped by
 /// (ALGORITHMS.md §4, design; the measured choice is in docs/EVALUATION.md "Placement").
@@ -814,6 +866,7 @@ impl Default for Extractor {
             vmlps: Default::default(),
             video: false,
             previous: HashMap::new(),
+            previous_tilt: HashMap::new(),
             seed_origin: SeedOrigin::Warp,
             tracking: VideoTracking::default(),
             moves: Vec::new(),
@@ -824,6 +877,8 @@ impl Default for Extractor {
             core_split: true,
             core_azimuth: true,
             sun_shadow: true,
+            stream_tilt: true,
+            untilted: None,
         }
     }
 }
@@ -894,6 +949,12 @@ impl Extractor {
         self.sun_shadow = on;
     }
 
+    /// Whether a stream's lights are tilted toward the floor they should give, as a single map's
+    /// are (ALGORITHMS.md §4.3, "Tilt in a stream"); the next frame starts from the untilted ones.
+    pub fn set_stream_tilt(&mut self, on: bool) {
+        self.stream_tilt = on;
+    }
+
     /// Video mode, for a stream of frames of one scene (the daemon, the temporal evaluation): the
     /// default method seeds each frame with the previous frame's lights of the same count instead
     /// of warping the fixed points afresh, and takes one full-resolution Lloyd step from them, so
@@ -909,6 +970,7 @@ impl Extractor {
         self.video = video;
         if !video {
             self.previous.clear();
+            self.previous_tilt.clear();
         }
     }
 
@@ -1159,13 +1221,17 @@ impl Extractor {
                     .contains_key(&(lights.len(), image.domain, image.side))
             {
                 self.previous.clear();
+                self.previous_tilt.clear();
             }
             let seeds = self
                 .previous
                 .entry((lights.len(), image.domain, image.side))
                 .or_default();
             seeds.clear();
-            seeds.extend(lights.iter().map(|l| Vec3::from_array(l.to_light)));
+            match self.untilted.take() {
+                Some(untilted) if untilted.len() == lights.len() => seeds.extend(untilted),
+                _ => seeds.extend(lights.iter().map(|l| Vec3::from_array(l.to_light))),
+            }
         }
     }
 
@@ -1248,6 +1314,7 @@ impl Extractor {
             if self.seed_origin == SeedOrigin::LastFrame {
                 self.limit_steps(image, &mut lights, &dead);
             }
+            self.tilt_stream_frame(image, &mut lights);
             return lights;
         }
         // Lloyd steps on the sphere: assign, re-seed at the centroids, `refine` times, then the
@@ -1308,24 +1375,8 @@ impl Extractor {
         } else {
             None
         };
-        if self.tilt && single && n <= WIDE_TILT_MAX_LIGHTS {
-            // Up to TILT_MAX_LIGHTS on the 32² reference the starts share, the whole way;
-            // above, on the 48² one, at most half of it. Either is built only when a fraction
-            // is to be tried.
-            if n <= TILT_MAX_LIGHTS {
-                let check = &mut check;
-                self.tilt_toward_floor(
-                    image,
-                    steps_image,
-                    &mut lights,
-                    move || &*check.get_or_insert_with(|| check_reference(steps_image)),
-                    1.0,
-                );
-            } else {
-                let wide = || check_reference_at(steps_image, WIDE_CHECK_GRID);
-                let max_fraction = WIDE_TILT_MAX_FRACTION;
-                self.tilt_toward_floor(image, steps_image, &mut lights, wide, max_fraction);
-            }
+        if self.tilt && single {
+            self.tilt_set(image, steps_image, &mut lights, &mut check, None);
         }
         if self.core_azimuth && single && n <= CORE_AZIMUTH_MAX_LIGHTS {
             let check = check.get_or_insert_with(|| check_reference(steps_image));
@@ -1336,7 +1387,99 @@ impl Extractor {
         }
         self.seeds = warped;
         self.half_image = half;
+        if self.seed_origin == SeedOrigin::StreamStart {
+            self.tilt_stream_frame(image, &mut lights);
+        }
         lights
+    }
+
+    /// A stream frame's tilt (ALGORITHMS.md §4.3, "Tilt in a stream"): a single map's, given to
+    /// the client while the next frame starts from the untilted lights, each light's tilt
+    /// changing by at most [`STREAM_TILT_STEP_DEG`] a frame.
+    fn tilt_stream_frame(&mut self, image: &DomainImage, lights: &mut [Light]) {
+        if !(self.tilt && self.stream_tilt) {
+            return;
+        }
+        let key = (lights.len(), image.domain, image.side);
+        let last = self
+            .previous_tilt
+            .remove(&key)
+            .filter(|t| t.tilts.len() == lights.len() && self.seed_origin == SeedOrigin::LastFrame);
+        // The fraction is chosen afresh every few frames; in between the last one is taken.
+        let given = last
+            .as_ref()
+            .filter(|t| t.age < STREAM_TILT_CHOOSE_EVERY)
+            .and_then(|t| t.choice)
+            .filter(|c| !c.expired);
+        let untilted: Vec<Vec3> = lights
+            .iter()
+            .map(|l| Vec3::from_array(l.to_light))
+            .collect();
+        let mut half = std::mem::replace(&mut self.half_image, DomainImage::empty());
+        // The half-resolution copy serves the estimate and the floor, wanted only to choose.
+        let coarse = given.is_none() && has_coarse_copy(image);
+        if coarse {
+            refresh_half(image, &mut half, &mut self.half_is_current);
+        }
+        let mut check = None;
+        let steps_image = if coarse { &half } else { image };
+        let choice = self.tilt_set(image, steps_image, lights, &mut check, given);
+        self.half_image = half;
+        let step = STREAM_TILT_STEP_DEG.to_radians();
+        let tilts = lights
+            .iter_mut()
+            .zip(&untilted)
+            .enumerate()
+            .map(|(k, (l, u))| {
+                let want = elevation(Vec3::from_array(l.to_light)) - elevation(*u);
+                let tilt = match &last {
+                    Some(last) => last.tilts[k] + (want - last.tilts[k]).clamp(-step, step),
+                    None => want,
+                };
+                if tilt != want {
+                    l.to_light = at_elevation(*u, elevation(*u) + tilt).to_array();
+                }
+                tilt
+            })
+            .collect();
+        let age = match (&last, choice) {
+            (Some(last), Some(c)) if !c.fresh => last.age + 1,
+            _ => 1,
+        };
+        self.previous_tilt
+            .insert(key, StreamTilt { tilts, choice, age });
+        self.untilted = Some(untilted);
+    }
+
+    /// The tilt of a set of `lights.len()` lights (ALGORITHMS.md §4.2, "Tilt"): up to
+    /// [`TILT_MAX_LIGHTS`] on the 32² reference (`check`, built only when a fraction is to be
+    /// tried), the whole way; up to [`WIDE_TILT_MAX_LIGHTS`] on the 48² one, at most
+    /// [`WIDE_TILT_MAX_FRACTION`] of it; above, none.
+    fn tilt_set(
+        &self,
+        image: &DomainImage,
+        steps_image: &DomainImage,
+        lights: &mut [Light],
+        check: &mut Option<IrradianceReference>,
+        given: Option<TiltChoice>,
+    ) -> Option<TiltChoice> {
+        let n = lights.len();
+        if n <= TILT_MAX_LIGHTS {
+            Some(self.tilt_toward_floor(
+                image,
+                steps_image,
+                lights,
+                move || &*check.get_or_insert_with(|| check_reference(steps_image)),
+                1.0,
+                given,
+            ))
+        } else if n <= WIDE_TILT_MAX_LIGHTS {
+            let wide = || check_reference_at(steps_image, WIDE_CHECK_GRID);
+            let max_fraction = WIDE_TILT_MAX_FRACTION;
+            Some(self.tilt_toward_floor(image, steps_image, lights, wide, max_fraction, given))
+        } else {
+            None
+        }
     }
 
     /// The tilt of a single map's lights toward the floor it should give (ALGORITHMS.md §4.2,
@@ -1350,20 +1493,29 @@ impl Extractor {
         lights: &mut [Light],
         check: impl FnOnce() -> C,
         max_fraction: f64,
-    ) where
+        given: Option<TiltChoice>,
+    ) -> TiltChoice
+    where
         C: std::borrow::Borrow<IrradianceReference>,
     {
         // The map's own floor irradiance ∫ L·max(0, ω_y) dω, as a share of its energy (from
-        // the texels' moments; the half-size image holds means), in the lights' units.
-        let (up, all) = steps_image
-            .moment
-            .iter()
-            .zip(&steps_image.luminance)
-            .fold((0.0f64, 0.0f64), |(u, a), (m, &y)| {
-                (u + m[1].max(0.0) as f64, a + y as f64)
-            });
+        // the texels' moments; the half-size image holds means), in the lights' units; a stream
+        // takes the share found when its fraction was chosen.
+        let floor_share = given.map_or_else(
+            || {
+                let (up, all) = steps_image
+                    .moment
+                    .iter()
+                    .zip(&steps_image.luminance)
+                    .fold((0.0f64, 0.0f64), |(u, a), (m, &y)| {
+                        (u + m[1].max(0.0) as f64, a + y as f64)
+                    });
+                if all > 0.0 { up / all } else { 0.0 }
+            },
+            |g| g.floor_share,
+        );
         let energy: f64 = lights.iter().map(|l| l.luminance()).sum();
-        let mut floor = if all > 0.0 { up / all * energy } else { 0.0 };
+        let mut floor = floor_share * energy;
         // The lights that may move: above the horizon, and not a compact core in a wider,
         // dimmer cell (a sun in its glare, a lamp), whose shadows' direction is its core's
         // and whose cell's excess is its halo's. One that stays answers for its own excess
@@ -1382,22 +1534,27 @@ impl Extractor {
                 floor += l.luminance() * (l.to_light[1] as f64 - a.weighted_dir.y / a.lum);
             }
         }
-        if tilt::floor_bias(lights, floor) > 0.0 {
+        let descending = tilt::floor_bias(lights, floor) > 0.0;
+        if given.is_some_and(|g| g.descending != descending) {
+            // The stream's lights now tilt the other way: none this frame, chosen afresh next.
+            return TiltChoice {
+                fraction: 0.0,
+                descending,
+                fresh: false,
+                floor_share,
+                expired: true,
+            };
+        }
+        // A fraction chosen in an earlier frame of a stream is taken again.
+        let given = given.map(|g| g.fraction);
+        let targets: Vec<Option<f64>> = if descending {
             // Too much floor: each light descends toward M_y/P, where a point of power P
             // gives a floor exactly its cell's first moment (ALGORITHMS.md §4.2, "Tilt").
-            let targets: Vec<Option<f64>> = self.accum[..lights.len()]
+            self.accum[..lights.len()]
                 .iter()
                 .zip(&movable)
                 .map(|(a, &m)| m.then(|| a.weighted_dir.y / a.lum))
-                .collect();
-            tilt::tilt_toward_floor(
-                lights,
-                &targets,
-                floor,
-                tilt::DESCENT_ALLOWANCE,
-                max_fraction,
-                check,
-            );
+                .collect()
         } else {
             // Too little: the lights of cells across the horizon rise toward G/P, their
             // cell's own floor G = Σ max(0, m_y) over its texels (the last full-resolution
@@ -1408,7 +1565,7 @@ impl Extractor {
                     *gk += image.moment[t][1].max(0.0) as f64;
                 }
             }
-            let targets: Vec<Option<f64>> = self.accum[..lights.len()]
+            self.accum[..lights.len()]
                 .iter()
                 .zip(&g)
                 .zip(&movable)
@@ -1417,15 +1574,25 @@ impl Extractor {
                     let t = gk / a.lum;
                     (m && t > l.to_light[1] as f64).then_some(t)
                 })
-                .collect();
-            tilt::tilt_toward_floor(
-                lights,
-                &targets,
-                floor,
-                tilt::RISE_ALLOWANCE,
-                max_fraction,
-                check,
-            );
+                .collect()
+        };
+        let fraction = match given {
+            Some(fraction) => tilt::tilt_at(lights, &targets, floor, max_fraction, fraction),
+            None => {
+                let allowance = if descending {
+                    tilt::DESCENT_ALLOWANCE
+                } else {
+                    tilt::RISE_ALLOWANCE
+                };
+                tilt::tilt_toward_floor(lights, &targets, floor, allowance, max_fraction, check)
+            }
+        };
+        TiltChoice {
+            fraction,
+            descending,
+            fresh: given.is_none(),
+            floor_share,
+            expired: false,
         }
     }
 

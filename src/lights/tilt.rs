@@ -55,6 +55,61 @@ fn tilted(d: DVec3, floor_y: f64, a: f64) -> DVec3 {
     DVec3::new(h.x, y, h.y)
 }
 
+/// The fraction of the way toward `targets` (at most `max_fraction`) that makes the lights'
+/// floor equal `floor`, or `None` where the targets do not move it toward `floor`. The floor's
+/// bias Σ P·max(0, sin e) − F is linear in the fraction while the moving lights stay above the
+/// horizon: b(a) = b0 + a (b1 − b0).
+fn zero_bias_fraction(
+    lights: &[Light],
+    targets: &[Option<f64>],
+    floor: f64,
+    max_fraction: f64,
+) -> Option<f64> {
+    debug_assert_eq!(lights.len(), targets.len());
+    let b0 = floor_bias(lights, floor);
+    let b1 = b0
+        + lights
+            .iter()
+            .zip(targets)
+            .filter_map(|(l, t)| t.map(|t| (l, t)))
+            .map(|(l, t)| {
+                let d = l.dir();
+                l.luminance() * (tilted(d, t, 1.0).y.max(0.0) - d.y.max(0.0))
+            })
+            .sum::<f64>();
+    ((b0 > 0.0 && b1 < b0) || (b0 < 0.0 && b1 > b0))
+        .then(|| (b0 / (b0 - b1)).min(max_fraction.min(1.0)))
+}
+
+/// Moves each light that has a target `a` of the way toward it (see [`tilted`]).
+fn apply(lights: &mut [Light], targets: &[Option<f64>], a: f64) {
+    for (l, t) in lights.iter_mut().zip(targets) {
+        if let Some(t) = t {
+            l.to_light = tilted(l.dir(), *t, a).as_vec3().to_array();
+        }
+    }
+}
+
+/// Tilts the lights by a fraction chosen before (`fraction`, of an earlier frame of a stream),
+/// at most the eighth that does not overshoot `floor`; returns the fraction taken. No estimate
+/// is made: the stream chooses afresh every few frames ([`tilt_toward_floor`]).
+pub(super) fn tilt_at(
+    lights: &mut [Light],
+    targets: &[Option<f64>],
+    floor: f64,
+    max_fraction: f64,
+    fraction: f64,
+) -> f64 {
+    let Some(a_zero) = zero_bias_fraction(lights, targets, floor, max_fraction) else {
+        return 0.0;
+    };
+    let a = fraction.min((a_zero * TILT_STEPS as f64).floor() / TILT_STEPS as f64);
+    if a > 0.0 {
+        apply(lights, targets, a);
+    }
+    a.max(0.0)
+}
+
 /// Tilts the lights that have a target toward it and returns the fraction taken (0: none).
 /// `targets[k]` is the sine of the elevation light k moves toward, `None` where it stays;
 /// `floor` is the map's ∫ L·max(0, ω_y) dω in the lights' units, the floor a point set should
@@ -73,25 +128,10 @@ pub(super) fn tilt_toward_floor<C>(
 where
     C: Borrow<IrradianceReference>,
 {
-    debug_assert_eq!(lights.len(), targets.len());
-    // The floor's bias Σ P·max(0, sin e) − F is linear in the fraction while the moving lights
-    // stay above the horizon: b(a) = b0 + a (b1 − b0).
-    let b0 = floor_bias(lights, floor);
-    let b1 = b0
-        + lights
-            .iter()
-            .zip(targets)
-            .filter_map(|(l, t)| t.map(|t| (l, t)))
-            .map(|(l, t)| {
-                let d = l.dir();
-                l.luminance() * (tilted(d, t, 1.0).y.max(0.0) - d.y.max(0.0))
-            })
-            .sum::<f64>();
     let mut chosen = 0.0;
-    if (b0 > 0.0 && b1 < b0) || (b0 < 0.0 && b1 > b0) {
+    if let Some(a_zero) = zero_bias_fraction(lights, targets, floor, max_fraction) {
         // The largest eighth that does not overshoot a zero bias, then smaller ones, until one
         // keeps the estimated diffuse error within the allowance.
-        let a_zero = (b0 / (b0 - b1)).min(max_fraction.min(1.0));
         let k_max = (a_zero * TILT_STEPS as f64).floor() as usize;
         if k_max == 0 {
             return 0.0;
@@ -133,11 +173,7 @@ where
         }
     }
     if chosen > 0.0 {
-        for (l, t) in lights.iter_mut().zip(targets) {
-            if let Some(t) = t {
-                l.to_light = tilted(l.dir(), *t, chosen).as_vec3().to_array();
-            }
-        }
+        apply(lights, targets, chosen);
     }
     chosen
 }
