@@ -497,15 +497,27 @@ pub const STREAM_TILT_STEP_DEG: f32 = 0.5;
 pub const STREAM_TILT_CHOOSE_EVERY: u32 = 8;
 
 /// The fraction of the way a set tilted (ALGORITHMS.md §4.2, "Tilt"), which way, whether it was
-/// chosen on the estimate (not taken from an earlier frame), the map's floor as a share of its
-/// energy, and whether a stream must choose afresh next frame (its lights turned the other way).
+/// chosen on the estimate (not taken from an earlier frame), and whether a stream must choose
+/// afresh next frame (its lights turned the other way).
 #[derive(Clone, Copy, Debug)]
 struct TiltChoice {
     fraction: f64,
     descending: bool,
     fresh: bool,
-    floor_share: f64,
     expired: bool,
+}
+
+/// The map's own floor irradiance ∫ L·max(0, ω_y) dω as a share of its energy, from the texels'
+/// moments (a half-size image holds means: the same share).
+fn floor_share(image: &DomainImage) -> f64 {
+    let (up, all) = image
+        .moment
+        .iter()
+        .zip(&image.luminance)
+        .fold((0.0f64, 0.0f64), |(u, a), (m, &y)| {
+            (u + m[1].max(0.0) as f64, a + y as f64)
+        });
+    if all > 0.0 { up / all } else { 0.0 }
 }
 
 /// A stream's tilt in its last frame: each light's, as its elevation's change (radians), the
@@ -1376,7 +1388,8 @@ impl Extractor {
             None
         };
         if self.tilt && single {
-            self.tilt_set(image, steps_image, &mut lights, &mut check, None);
+            let share = floor_share(steps_image);
+            self.tilt_set(image, steps_image, &mut lights, &mut check, None, share);
         }
         if self.core_azimuth && single && n <= CORE_AZIMUTH_MAX_LIGHTS {
             let check = check.get_or_insert_with(|| check_reference(steps_image));
@@ -1423,7 +1436,11 @@ impl Extractor {
         }
         let mut check = None;
         let steps_image = if coarse { &half } else { image };
-        let choice = self.tilt_set(image, steps_image, lights, &mut check, given);
+        // The floor's share from the full-resolution texels every frame: taken from the frame
+        // that chose the fraction, it jolted the tilt every eighth frame (EVALUATION.md, "The
+        // stream's shadows").
+        let share = floor_share(image);
+        let choice = self.tilt_set(image, steps_image, lights, &mut check, given, share);
         self.half_image = half;
         let step = STREAM_TILT_STEP_DEG.to_radians();
         let tilts = lights
@@ -1462,21 +1479,22 @@ impl Extractor {
         lights: &mut [Light],
         check: &mut Option<IrradianceReference>,
         given: Option<TiltChoice>,
+        floor_share: f64,
     ) -> Option<TiltChoice> {
         let n = lights.len();
         if n <= TILT_MAX_LIGHTS {
             Some(self.tilt_toward_floor(
                 image,
-                steps_image,
                 lights,
                 move || &*check.get_or_insert_with(|| check_reference(steps_image)),
                 1.0,
                 given,
+                floor_share,
             ))
         } else if n <= WIDE_TILT_MAX_LIGHTS {
             let wide = || check_reference_at(steps_image, WIDE_CHECK_GRID);
             let max_fraction = WIDE_TILT_MAX_FRACTION;
-            Some(self.tilt_toward_floor(image, steps_image, lights, wide, max_fraction, given))
+            Some(self.tilt_toward_floor(image, lights, wide, max_fraction, given, floor_share))
         } else {
             None
         }
@@ -1489,31 +1507,16 @@ impl Extractor {
     fn tilt_toward_floor<C>(
         &self,
         image: &DomainImage,
-        steps_image: &DomainImage,
         lights: &mut [Light],
         check: impl FnOnce() -> C,
         max_fraction: f64,
         given: Option<TiltChoice>,
+        floor_share: f64,
     ) -> TiltChoice
     where
         C: std::borrow::Borrow<IrradianceReference>,
     {
-        // The map's own floor irradiance ∫ L·max(0, ω_y) dω, as a share of its energy (from
-        // the texels' moments; the half-size image holds means), in the lights' units; a stream
-        // takes the share found when its fraction was chosen.
-        let floor_share = given.map_or_else(
-            || {
-                let (up, all) = steps_image
-                    .moment
-                    .iter()
-                    .zip(&steps_image.luminance)
-                    .fold((0.0f64, 0.0f64), |(u, a), (m, &y)| {
-                        (u + m[1].max(0.0) as f64, a + y as f64)
-                    });
-                if all > 0.0 { up / all } else { 0.0 }
-            },
-            |g| g.floor_share,
-        );
+        // The map's own floor irradiance in the lights' units.
         let energy: f64 = lights.iter().map(|l| l.luminance()).sum();
         let mut floor = floor_share * energy;
         // The lights that may move: above the horizon, and not a compact core in a wider,
@@ -1541,7 +1544,6 @@ impl Extractor {
                 fraction: 0.0,
                 descending,
                 fresh: false,
-                floor_share,
                 expired: true,
             };
         }
@@ -1591,7 +1593,6 @@ impl Extractor {
             fraction,
             descending,
             fresh: given.is_none(),
-            floor_share,
             expired: false,
         }
     }
