@@ -146,9 +146,10 @@ impl Broker {
             String::new()
         };
         let text = format!(
-            "listen: 127.0.0.1:{port}\nhttp: 127.0.0.1:{http}\nwrite_deadline: \"{wd}\"\nmax_pending: {mp}\nmax_payload: {pl}\n\
+            "server_name: \"{name}\"\nlisten: 127.0.0.1:{port}\nhttp: 127.0.0.1:{http}\nwrite_deadline: \"{wd}\"\nmax_pending: {mp}\nmax_payload: {pl}\n\
              max_connections: 20000\n{jetstream}{extra}\n\
              websocket {{\n  listen: \"127.0.0.1:{ws}\"\n  no_tls: true\n{ws_extra}\n}}\n",
+            name = self.name(),
             port = self.port,
             http = self.http_port,
             ws = self.ws_port,
@@ -180,7 +181,10 @@ impl Broker {
                 )
                 .is_ok()
             });
-            if up {
+            // Ports chosen free can be taken by another test's broker before this one binds
+            // them: then that one answers while this one has exited. Up means this server, by
+            // its name, on its monitoring port.
+            if up && self.answers_as_itself() {
                 return Ok(());
             }
             let exited = self
@@ -193,6 +197,39 @@ impl Broker {
             }
             std::thread::sleep(Duration::from_millis(50));
         }
+    }
+
+    /// The name this server is given in its configuration (unique to the process and ports).
+    fn name(&self) -> String {
+        format!("vemlight-test-{}-{}", std::process::id(), self.port)
+    }
+
+    /// Whether the server on the monitoring port is this one (its `server_name`), alive.
+    fn answers_as_itself(&mut self) -> bool {
+        use std::io::Read;
+        let alive = self
+            .child
+            .as_mut()
+            .is_some_and(|c| matches!(c.try_wait(), Ok(None)));
+        let Ok(mut s) = std::net::TcpStream::connect(("127.0.0.1", self.http_port)) else {
+            return false;
+        };
+        let _ = s.set_read_timeout(Some(Duration::from_secs(2)));
+        if write!(
+            s,
+            "GET /varz HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
+        )
+        .is_err()
+        {
+            return false;
+        }
+        let mut body = String::new();
+        let _ = s.read_to_string(&mut body);
+        let json = body.split_once("\r\n\r\n").map_or("", |x| x.1);
+        let name = serde_json::from_str::<serde_json::Value>(json)
+            .ok()
+            .and_then(|v| v["server_name"].as_str().map(str::to_owned));
+        alive && name.as_deref() == Some(self.name().as_str())
     }
 
     /// `nats://127.0.0.1:PORT`.
