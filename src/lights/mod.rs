@@ -496,15 +496,11 @@ pub const STREAM_TILT_STEP_DEG: f32 = 0.5;
 /// tilt's cost, and the step limit lets a light's tilt change only slowly anyway.
 pub const STREAM_TILT_CHOOSE_EVERY: u32 = 8;
 
-/// The fraction of the way a set tilted (ALGORITHMS.md §4.2, "Tilt"), which way, whether it was
-/// chosen on the estimate (not taken from an earlier frame), and whether a stream must choose
-/// afresh next frame (its lights turned the other way).
+/// The fraction of the way a set tilted (ALGORITHMS.md §4.2, "Tilt"), and which way.
 #[derive(Clone, Copy, Debug)]
 struct TiltChoice {
     fraction: f64,
     descending: bool,
-    fresh: bool,
-    expired: bool,
 }
 
 /// The map's own floor irradiance ∫ L·max(0, ω_y) dω as a share of its energy, from the texels'
@@ -521,7 +517,8 @@ fn floor_share(image: &DomainImage) -> f64 {
 }
 
 /// A stream's tilt in its last frame: each light's, as its elevation's change (radians), the
-/// fraction the set took, and how many frames that fraction has served.
+/// fraction the set took, and how many frames that fraction has served (at
+/// [`STREAM_TILT_CHOOSE_EVERY`] or more, the next frame chooses afresh).
 struct StreamTilt {
     tilts: Vec<f32>,
     choice: Option<TiltChoice>,
@@ -1388,8 +1385,14 @@ impl Extractor {
             None
         };
         if self.tilt && single {
-            let share = floor_share(steps_image);
-            self.tilt_set(image, steps_image, &mut lights, &mut check, None, share);
+            self.tilt_set(
+                image,
+                steps_image,
+                &mut lights,
+                &mut check,
+                None,
+                steps_image,
+            );
         }
         if self.core_azimuth && single && n <= CORE_AZIMUTH_MAX_LIGHTS {
             let check = check.get_or_insert_with(|| check_reference(steps_image));
@@ -1410,7 +1413,7 @@ impl Extractor {
     /// the client while the next frame starts from the untilted lights, each light's tilt
     /// changing by at most [`STREAM_TILT_STEP_DEG`] a frame.
     fn tilt_stream_frame(&mut self, image: &DomainImage, lights: &mut [Light]) {
-        if !(self.tilt && self.stream_tilt) {
+        if !(self.tilt && self.stream_tilt && lights.len() <= WIDE_TILT_MAX_LIGHTS) {
             return;
         }
         let key = (lights.len(), image.domain, image.side);
@@ -1422,8 +1425,7 @@ impl Extractor {
         let given = last
             .as_ref()
             .filter(|t| t.age < STREAM_TILT_CHOOSE_EVERY)
-            .and_then(|t| t.choice)
-            .filter(|c| !c.expired);
+            .and_then(|t| t.choice);
         let untilted: Vec<Vec3> = lights
             .iter()
             .map(|l| Vec3::from_array(l.to_light))
@@ -1439,8 +1441,7 @@ impl Extractor {
         // The floor's share from the full-resolution texels every frame: taken from the frame
         // that chose the fraction, it jolted the tilt every eighth frame (EVALUATION.md, "The
         // stream's shadows").
-        let share = floor_share(image);
-        let choice = self.tilt_set(image, steps_image, lights, &mut check, given, share);
+        let choice = self.tilt_set(image, steps_image, lights, &mut check, given, image);
         self.half_image = half;
         let step = STREAM_TILT_STEP_DEG.to_radians();
         let tilts = lights
@@ -1459,9 +1460,11 @@ impl Extractor {
                 tilt
             })
             .collect();
-        let age = match (&last, choice) {
-            (Some(last), Some(c)) if !c.fresh => last.age + 1,
-            _ => 1,
+        let age = match (given, choice) {
+            // The lights now tilt the other way: the fraction was not taken, choose afresh.
+            (Some(g), Some(c)) if g.descending != c.descending => STREAM_TILT_CHOOSE_EVERY,
+            (Some(_), _) => last.as_ref().map_or(1, |t| t.age + 1),
+            (None, _) => 1,
         };
         self.previous_tilt
             .insert(key, StreamTilt { tilts, choice, age });
@@ -1471,7 +1474,8 @@ impl Extractor {
     /// The tilt of a set of `lights.len()` lights (ALGORITHMS.md §4.2, "Tilt"): up to
     /// [`TILT_MAX_LIGHTS`] on the 32² reference (`check`, built only when a fraction is to be
     /// tried), the whole way; up to [`WIDE_TILT_MAX_LIGHTS`] on the 48² one, at most
-    /// [`WIDE_TILT_MAX_FRACTION`] of it; above, none.
+    /// [`WIDE_TILT_MAX_FRACTION`] of it; above, none. The map's floor is summed on
+    /// `floor_image`.
     fn tilt_set(
         &self,
         image: &DomainImage,
@@ -1479,7 +1483,7 @@ impl Extractor {
         lights: &mut [Light],
         check: &mut Option<IrradianceReference>,
         given: Option<TiltChoice>,
-        floor_share: f64,
+        floor_image: &DomainImage,
     ) -> Option<TiltChoice> {
         let n = lights.len();
         if n <= TILT_MAX_LIGHTS {
@@ -1489,12 +1493,13 @@ impl Extractor {
                 move || &*check.get_or_insert_with(|| check_reference(steps_image)),
                 1.0,
                 given,
-                floor_share,
+                floor_share(floor_image),
             ))
         } else if n <= WIDE_TILT_MAX_LIGHTS {
             let wide = || check_reference_at(steps_image, WIDE_CHECK_GRID);
             let max_fraction = WIDE_TILT_MAX_FRACTION;
-            Some(self.tilt_toward_floor(image, lights, wide, max_fraction, given, floor_share))
+            let share = floor_share(floor_image);
+            Some(self.tilt_toward_floor(image, lights, wide, max_fraction, given, share))
         } else {
             None
         }
@@ -1539,12 +1544,11 @@ impl Extractor {
         }
         let descending = tilt::floor_bias(lights, floor) > 0.0;
         if given.is_some_and(|g| g.descending != descending) {
-            // The stream's lights now tilt the other way: none this frame, chosen afresh next.
+            // The stream's lights now tilt the other way: none this frame (the caller chooses
+            // afresh next).
             return TiltChoice {
                 fraction: 0.0,
                 descending,
-                fresh: false,
-                expired: true,
             };
         }
         // A fraction chosen in an earlier frame of a stream is taken again.
@@ -1592,8 +1596,6 @@ impl Extractor {
         TiltChoice {
             fraction,
             descending,
-            fresh: given.is_none(),
-            expired: false,
         }
     }
 
