@@ -206,27 +206,12 @@ impl Broker {
 
     /// Whether the server on the monitoring port is this one (its `server_name`), alive.
     fn answers_as_itself(&mut self) -> bool {
-        use std::io::Read;
         let alive = self
             .child
             .as_mut()
             .is_some_and(|c| matches!(c.try_wait(), Ok(None)));
-        let Ok(mut s) = std::net::TcpStream::connect(("127.0.0.1", self.http_port)) else {
-            return false;
-        };
-        let _ = s.set_read_timeout(Some(Duration::from_secs(2)));
-        if write!(
-            s,
-            "GET /varz HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
-        )
-        .is_err()
-        {
-            return false;
-        }
-        let mut body = String::new();
-        let _ = s.read_to_string(&mut body);
-        let json = body.split_once("\r\n\r\n").map_or("", |x| x.1);
-        let name = serde_json::from_str::<serde_json::Value>(json)
+        let name = self
+            .try_monitor("varz", Some(Duration::from_secs(2)))
             .ok()
             .and_then(|v| v["server_name"].as_str().map(str::to_owned));
         alive && name.as_deref() == Some(self.name().as_str())
@@ -244,17 +229,30 @@ impl Broker {
 
     /// The monitoring endpoint `path` (`varz`, `connz`, `subsz`) as JSON.
     pub fn monitor(&self, path: &str) -> serde_json::Value {
+        self.try_monitor(path, None)
+            .unwrap_or_else(|e| panic!("monitor /{path}: {e}"))
+    }
+
+    /// [`Self::monitor`], or why not: the port does not answer (within `timeout`, if given), or
+    /// not with JSON.
+    fn try_monitor(
+        &self,
+        path: &str,
+        timeout: Option<Duration>,
+    ) -> Result<serde_json::Value, String> {
         use std::io::Read;
-        let mut s = std::net::TcpStream::connect(("127.0.0.1", self.http_port)).unwrap();
+        let mut s = std::net::TcpStream::connect(("127.0.0.1", self.http_port))
+            .map_err(|e| e.to_string())?;
+        s.set_read_timeout(timeout).map_err(|e| e.to_string())?;
         write!(
             s,
             "GET /{path} HTTP/1.0\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n"
         )
-        .unwrap();
+        .map_err(|e| e.to_string())?;
         let mut body = String::new();
-        s.read_to_string(&mut body).unwrap();
+        s.read_to_string(&mut body).map_err(|e| e.to_string())?;
         let json = body.split_once("\r\n\r\n").map(|x| x.1).unwrap_or("");
-        serde_json::from_str(json).unwrap_or_else(|e| panic!("monitor /{path}: {e}: {body}"))
+        serde_json::from_str(json).map_err(|e| format!("{e}: {body}"))
     }
 
     /// Kills the server (a broker that goes away).
