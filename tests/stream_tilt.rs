@@ -119,6 +119,35 @@ fn a_stream_tilts_its_lights_without_moving_their_track() {
     );
 }
 
+/// The stream's tilt is a stream's alone: a single map without Lloyd steps (`--refine 0`), whose
+/// final assignment is the same one a stream's later frames take, and the inverse-CDF baseline
+/// there, give the same lights with it on and off, in any order of calls.
+#[test]
+fn a_single_map_without_lloyd_steps_takes_no_stream_tilt() {
+    let map = load("overcast-plaza.exr");
+    for method in [Method::Voronoi, Method::InverseCdf] {
+        for n in [16, 64] {
+            let (mut on, mut off) = (Extractor::new(), Extractor::new());
+            off.set_stream_tilt(false);
+            for ex in [&mut on, &mut off] {
+                ex.set_refine(0);
+            }
+            for _ in 0..2 {
+                let a = on.extract(&map, &opts(n, method)).lights;
+                let b = off.extract(&map, &opts(n, method)).lights;
+                assert_eq!(a.len(), b.len());
+                for (la, lb) in a.iter().zip(&b) {
+                    assert_eq!(
+                        la.to_light, lb.to_light,
+                        "{method:?} at {n} lights: light {} moved by the stream's tilt",
+                        la.id
+                    );
+                }
+            }
+        }
+    }
+}
+
 /// The daemon's case: a stream of the overcast plaza turning 0.25°/frame at 64 lights. Untilted,
 /// its lights' shadowed error (ALGORITHMS.md §9) was 1.11–1.25 × median cut's on every frame
 /// measured (EVALUATION.md, "The stream's shadows"); tilted, at most median cut's.

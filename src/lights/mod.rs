@@ -1403,24 +1403,28 @@ impl Extractor {
         }
         self.seeds = warped;
         self.half_image = half;
-        if self.seed_origin == SeedOrigin::StreamStart {
-            self.tilt_stream_frame(image, &mut lights);
-        }
+        self.tilt_stream_frame(image, &mut lights);
         lights
     }
 
     /// A stream frame's tilt (ALGORITHMS.md §4.3, "Tilt in a stream"): a single map's, given to
     /// the client while the next frame starts from the untilted lights, each light's tilt
-    /// changing by at most [`STREAM_TILT_STEP_DEG`] a frame.
+    /// changing by at most [`STREAM_TILT_STEP_DEG`] a frame. Nothing outside a stream (a single
+    /// map without Lloyd steps shares the stream's final assignment, not its tilt).
     fn tilt_stream_frame(&mut self, image: &DomainImage, lights: &mut [Light]) {
-        if !(self.tilt && self.stream_tilt && lights.len() <= WIDE_TILT_MAX_LIGHTS) {
+        let in_stream = matches!(
+            self.seed_origin,
+            SeedOrigin::StreamStart | SeedOrigin::LastFrame
+        );
+        if !(in_stream && self.tilt && self.stream_tilt && lights.len() <= WIDE_TILT_MAX_LIGHTS) {
             return;
         }
+        // The key holds the count, so a kept tilt has a value for every light.
         let key = (lights.len(), image.domain, image.side);
         let last = self
             .previous_tilt
             .remove(&key)
-            .filter(|t| t.tilts.len() == lights.len() && self.seed_origin == SeedOrigin::LastFrame);
+            .filter(|_| self.seed_origin == SeedOrigin::LastFrame);
         // The fraction is chosen afresh every few frames; in between the last one is taken.
         let given = last
             .as_ref()
@@ -1486,23 +1490,24 @@ impl Extractor {
         floor_image: &DomainImage,
     ) -> Option<TiltChoice> {
         let n = lights.len();
-        if n <= TILT_MAX_LIGHTS {
-            Some(self.tilt_toward_floor(
+        if n > WIDE_TILT_MAX_LIGHTS {
+            return None;
+        }
+        let share = floor_share(floor_image);
+        Some(if n <= TILT_MAX_LIGHTS {
+            self.tilt_toward_floor(
                 image,
                 lights,
                 move || &*check.get_or_insert_with(|| check_reference(steps_image)),
                 1.0,
                 given,
-                floor_share(floor_image),
-            ))
-        } else if n <= WIDE_TILT_MAX_LIGHTS {
+                share,
+            )
+        } else {
             let wide = || check_reference_at(steps_image, WIDE_CHECK_GRID);
             let max_fraction = WIDE_TILT_MAX_FRACTION;
-            let share = floor_share(floor_image);
-            Some(self.tilt_toward_floor(image, lights, wide, max_fraction, given, share))
-        } else {
-            None
-        }
+            self.tilt_toward_floor(image, lights, wide, max_fraction, given, share)
+        })
     }
 
     /// The tilt of a single map's lights toward the floor it should give (ALGORITHMS.md §4.2,
