@@ -787,12 +787,12 @@ impl CellAccum {
         self.texels += 1;
     }
 
-    /// Adds texel `t` to the core's sums if it is in the core (at least [`CORE_FRACTION`] of the
-    /// cell's peak).
+    /// Adds texel `t` to the core's sums if it is in the core (at least `fraction` of the
+    /// cell's peak: [`CORE_FRACTION`] or [`STREAM_CORE_FRACTION`]).
     #[inline(always)]
-    fn add_core_texel(&mut self, image: &DomainImage, t: usize) -> bool {
+    fn add_core_texel(&mut self, image: &DomainImage, t: usize, fraction: f32) -> bool {
         let y = image.luminance[t];
-        let core = y > 0.0 && y >= CORE_FRACTION * self.peak;
+        let core = y > 0.0 && y >= fraction * self.peak;
         if core {
             self.core_lum += y as f64;
             self.core_moment += Vec3::from_array(image.moment[t]).as_dvec3();
@@ -824,6 +824,14 @@ const MAX_VIDEO_COUNTS: usize = 32;
 /// beside the rest of the cell binned by angle (ALGORITHMS.md §12, "Core and rest"); and the tilt
 /// leaves a light whose core is compact in a wider cell alone (§4.2, "Tilt"; `TILT_CORE_SHARE`).
 pub const CORE_FRACTION: f32 = 0.25;
+
+/// The core's fraction of its cell's peak in a stream (ALGORITHMS.md §12, "The core in a
+/// stream"). The sun (0.53°) lies on up to 2 × 2 texels of about 1° in shares that change as it
+/// moves; with [`CORE_FRACTION`] up to a fifth of it fell out of the core on some frames, and the
+/// light's two-part extent came and went. A tenth leaves out at most 9 % (f/(1 + f)). A single
+/// map keeps the quarter its core split and core azimuth, which a stream does not take, were
+/// tuned on.
+pub const STREAM_CORE_FRACTION: f32 = 0.1;
 
 /// The widest core split off its cell (ALGORITHMS.md §12, "Core split"), degrees.
 const CORE_SPLIT_MAX_DEG: f32 = 2.0;
@@ -986,6 +994,16 @@ impl Extractor {
     /// How far a light may move in one frame of video mode (see [`VideoTracking`]).
     pub fn set_video_tracking(&mut self, tracking: VideoTracking) {
         self.tracking = tracking;
+    }
+
+    /// The fraction of its cell's peak a texel needs to be in the cell's core: a stream's
+    /// ([`STREAM_CORE_FRACTION`], its first frame included) or a single map's ([`CORE_FRACTION`]).
+    fn core_fraction(&self) -> f32 {
+        if self.seed_origin == SeedOrigin::Warp {
+            CORE_FRACTION
+        } else {
+            STREAM_CORE_FRACTION
+        }
     }
 
     /// The density the voronoi method warps its points by (see [`Placement`]), in place of
@@ -2101,6 +2119,7 @@ impl Extractor {
     /// has as many lit texels as lights, and Σ energy is unchanged.
     fn steal_for_dead(&mut self, image: &DomainImage, lights: Vec<Light>) -> Vec<Light> {
         let mut changed = false;
+        let core_fraction = self.core_fraction();
         while let Some(dead) = (0..self.accum.len()).find(|&k| self.accum[k].lum <= 0.0) {
             let Some(donor) = (0..self.accum.len())
                 .filter(|&k| self.accum[k].can_donate())
@@ -2123,7 +2142,7 @@ impl Extractor {
             d.weighted_dir -= moment;
             d.lum -= y as f64;
             d.texels -= 1;
-            if y >= CORE_FRACTION * d.peak && d.core_lum > y as f64 {
+            if y >= core_fraction * d.peak && d.core_lum > y as f64 {
                 d.core_lum -= y as f64;
                 d.core_moment -= moment;
                 d.core_energy -= radiance;
@@ -2192,12 +2211,14 @@ impl Extractor {
             );
             self.rest_bins.clear();
             self.rest_bins.resize(self.accum.len() * ANGLE_BINS, 0.0);
+            let core_fraction = self.core_fraction();
             add_cores_and_rest(
                 image,
                 &self.owner,
                 &self.centroids,
                 &mut self.accum,
                 &mut self.rest_bins,
+                core_fraction,
             );
         }
         // Move each light to its cell's luminance-weighted centroid; a dark or empty cell keeps
@@ -2343,10 +2364,11 @@ fn add_cores_and_rest(
     centroids: &[DVec3],
     accum: &mut [CellAccum],
     rest_bins: &mut [f32],
+    core_fraction: f32,
 ) {
     for (t, &k) in owner.iter().enumerate() {
         let k = k as usize;
-        if !accum[k].add_core_texel(image, t)
+        if !accum[k].add_core_texel(image, t, core_fraction)
             && let Some(far) = farness(image, t, centroids[k])
         {
             let y = image.luminance[t];
