@@ -190,6 +190,9 @@ fn a_streams_shadows_are_no_worse_than_median_cuts_on_an_overcast_plaza() {
 /// the shadowed error (ALGORITHMS.md §9) of each as a ratio to median cut's on that frame, and
 /// a single map's of the same frame. `cargo test --release --test stream_tilt -- --ignored
 /// --nocapture stream_shadow_table` (about 5 minutes on two cores, about 15 with the 18 held-out maps).
+/// `VEMLIGHT_EVERY_FRAME=1` scores every frame from 0 to 20 instead (about 4 minutes a map: the
+/// shadowed truth is built per frame), and `VEMLIGHT_ONLY_MAPS=city,pm-studio` keeps the maps
+/// whose names contain one of the words.
 #[test]
 #[ignore = "measurement: prints the stream's shadowed error per map (minutes)"]
 fn stream_shadow_table() {
@@ -207,6 +210,11 @@ fn stream_shadow_table() {
             maps.push((name, EnvMap::open(&p, None, 1 << 26).expect("a map")));
         }
     }
+    if let Ok(only) = std::env::var("VEMLIGHT_ONLY_MAPS") {
+        let words: Vec<&str> = only.split(',').filter(|w| !w.is_empty()).collect();
+        maps.retain(|(name, _)| words.iter().any(|w| name.contains(w)));
+    }
+    let every_frame = std::env::var_os("VEMLIGHT_EVERY_FRAME").is_some();
     let n = 64;
     let jobs = Mutex::new((0..maps.len()).rev().collect::<Vec<_>>());
     let rows: Mutex<Vec<(String, f64, f64, f64)>> = Mutex::new(Vec::new());
@@ -225,7 +233,7 @@ fn stream_shadow_table() {
                         let frame = turned(&dirs, map, 0.25 * t as f64);
                         let a = tilted.extract(&frame, &opts(n, Method::Voronoi)).lights;
                         let b = plain.extract(&frame, &opts(n, Method::Voronoi)).lights;
-                        if t % 8 != 4 {
+                        if !every_frame && t % 8 != 4 {
                             continue;
                         }
                         let truth = Truth::new(&frame, Domain::Sphere);
