@@ -792,13 +792,20 @@ impl CellAccum {
     #[inline(always)]
     fn add_core_texel(&mut self, image: &DomainImage, t: usize, fraction: f32) -> bool {
         let y = image.luminance[t];
-        let core = y > 0.0 && y >= fraction * self.peak;
+        let core = self.in_core(y, fraction);
         if core {
             self.core_lum += y as f64;
             self.core_moment += Vec3::from_array(image.moment[t]).as_dvec3();
             self.core_energy += Vec3::from_array(image.radiance[t]).as_dvec3();
         }
         core
+    }
+
+    /// Whether a texel of luminance `y` belongs to the cell's core: lit and at least `fraction`
+    /// of the cell's peak.
+    #[inline(always)]
+    fn in_core(&self, y: f32, fraction: f32) -> bool {
+        y > 0.0 && y >= fraction * self.peak
     }
 
     /// Whether the cell's core is compact in it: its spread 1 − |M|/P under [`TILT_CORE_SHARE`]
@@ -1430,10 +1437,7 @@ impl Extractor {
     /// changing by at most [`STREAM_TILT_STEP_DEG`] a frame. Nothing outside a stream (a single
     /// map without Lloyd steps shares the stream's final assignment, not its tilt).
     fn tilt_stream_frame(&mut self, image: &DomainImage, lights: &mut [Light]) {
-        let in_stream = matches!(
-            self.seed_origin,
-            SeedOrigin::StreamStart | SeedOrigin::LastFrame
-        );
+        let in_stream = self.seed_origin != SeedOrigin::Warp;
         if !(in_stream && self.tilt && self.stream_tilt && lights.len() <= WIDE_TILT_MAX_LIGHTS) {
             return;
         }
@@ -2142,7 +2146,7 @@ impl Extractor {
             d.weighted_dir -= moment;
             d.lum -= y as f64;
             d.texels -= 1;
-            if y >= core_fraction * d.peak && d.core_lum > y as f64 {
+            if d.in_core(y, core_fraction) && d.core_lum > y as f64 {
                 d.core_lum -= y as f64;
                 d.core_moment -= moment;
                 d.core_energy -= radiance;
