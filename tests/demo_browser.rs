@@ -68,16 +68,17 @@ fn ground_irradiance(set: &Value, visibility: &Value) -> f64 {
         .sum()
 }
 
-/// A pixel measurement of the demo page taken once the frame draws the sun where the plan puts
-/// it (within 1°): lights are smoothed toward each new set, and a measurement taken in the frame
-/// after the sun moved would judge the old shadow against the new sun (seen on a loaded machine,
-/// where SwiftShader draws a frame or two a second).
+/// A pixel measurement of the demo page of a frame drawn with the smoothing completed (`snap`),
+/// checked to draw the sun where the plan puts it (within 1°). Lights are smoothed toward each new
+/// set, and on a loaded machine, where SwiftShader draws a frame or two a second and a measurement
+/// blocks the page for a second or more, a smoothed frame can lag the moving sun by degrees and
+/// would judge the old shadow against the new sun.
 async fn measure_as_drawn(cdp: &mut chromium::Cdp, grid: &Value) -> Value {
     let start = Instant::now();
     loop {
         let m = cdp
             .eval(&format!(
-                "vemlightDemo.measure({{ at: {grid} }}).then(JSON.stringify)"
+                "vemlightDemo.measure({{ at: {grid}, snap: true }}).then(JSON.stringify)"
             ))
             .await;
         let sun = &m["sun"];

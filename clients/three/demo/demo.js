@@ -115,7 +115,9 @@ let frames = 0, last = performance.now(), pending = [];
 renderer.setAnimationLoop((now) => {
   const dt = Math.min(0.25, (now - last) / 1000);
   last = now;
-  client.update(dt);
+  // A measurement asked with `snap` is taken of lights drawn exactly where the last set puts
+  // them: the smoothing is completed in this frame (it goes on from there in the next).
+  client.update(pending.some((p) => p.options?.snap) ? Infinity : dt);
   const radiance = (GROUND_ALBEDO / Math.PI) * groundIrradiance();
   if (radiance > 0) renderer.toneMappingExposure = (tonemap === "linear" ? 0.5 : 0.8) / radiance;
   renderer.render(scene, camera);
@@ -335,7 +337,10 @@ function rendererName() {
 window.vemlightDemo = {
   state,
   client,
-  /** Resolves after the next frame with the pixel measurement (see measureNow). */
+  /**
+   * Resolves after the next frame with the pixel measurement (see measureNow). `snap: true` draws
+   * that frame with the smoothing completed, so the pixels show the last set as it is.
+   */
   measure: (options) => new Promise((resolve, reject) => pending.push({ options, resolve, reject })),
   /** Frames drawn in the next `ms` milliseconds, per second. */
   countFrames: (ms = 3000) =>
