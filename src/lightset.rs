@@ -4,7 +4,7 @@
 //! HTTP endpoint returns, the WebSocket stream sends and the CLI prints (DESIGN.md "wire format").
 
 use crate::envmap::{EnvMap, Projection};
-use crate::lights::budget::count_ladder;
+use crate::lights::budget::fewest_meeting;
 use crate::lights::error::IrradianceReference;
 use crate::lights::{
     Extractor, FrameRequest, Light, Method, PrimaryLight, primary_light, total_irradiance,
@@ -261,31 +261,33 @@ pub fn lightset_for_map(
 
     let needs_reference = req.max_error.is_some() || req.estimate_error;
     let reference = needs_reference.then(|| IrradianceReference::from_domain_image(&image));
-    let ((ex, sh9), error, met) = match (req.max_error, &reference) {
+    let ((ex, sh9), error, met, chosen) = match (req.max_error, &reference) {
         (Some(target), Some(reference)) => {
-            // The fewest of the ladder that meet the target; the cap when none does.
-            let mut found = None;
-            for n in count_ladder(req.lights) {
+            // The fewest lights that meet the target; the cap when none does.
+            let fewest = fewest_meeting(req.lights, target, |n| {
                 let (ex, sh9) = extract(n, req.sh9);
                 let err = reference.error(&ex.lights).rel_rms;
-                if err <= target || n == req.lights {
-                    found = Some(((ex, sh9), Some(err), Some(err <= target)));
-                    break;
-                }
-            }
-            found.expect("the ladder ends at the cap")
+                ((ex, sh9), err)
+            });
+            let chosen = Some(fewest.count);
+            (fewest.value, Some(fewest.error), Some(fewest.met), chosen)
         }
         _ => {
             let (ex, sh9) = extract(req.lights, req.sh9);
             let err = reference.as_ref().map(|r| r.error(&ex.lights).rel_rms);
-            ((ex, sh9), err, None)
+            ((ex, sh9), err, None, None)
         }
     };
+    // `lights_short` counts the lights the map could not give of those extracted (the count
+    // chosen, with `max_error`), as a stream's sets do.
+    let extracted = chosen.unwrap_or(req.lights);
     let mut set = LightSet::new(
-        ex.lights, map, req.method, domain, source, req.lights, ex.side,
+        ex.lights, map, req.method, domain, source, extracted, ex.side,
     );
     set.sh9 = sh9;
     let d = &mut set.diagnostics;
+    d.lights_requested = req.lights;
+    d.lights_chosen = chosen;
     d.estimated_error = error;
     d.max_error = req.max_error;
     d.max_error_met = met;

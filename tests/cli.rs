@@ -74,7 +74,11 @@ fn max_error_reports_the_chosen_count() {
     let doc = stdout_json(&out);
     assert_valid(&lightset_validator(), &doc);
     let n = doc["lights"].as_array().unwrap().len();
-    assert!(n.is_power_of_two() && n <= 64, "{n}");
+    assert!((1..=64).contains(&n), "{n}");
+    // The count chosen is not a shortfall of the map's.
+    assert_eq!(doc["diagnostics"]["lights_requested"], 64);
+    assert_eq!(doc["diagnostics"]["lights_chosen"], n);
+    assert!(doc["diagnostics"]["lights_short"].is_null(), "{doc}");
     assert!(doc["diagnostics"]["estimated_error"].as_f64().unwrap() <= 0.01);
     assert_eq!(doc["diagnostics"]["max_error_met"], true);
     assert_eq!(doc["domain"], "upper");

@@ -337,35 +337,53 @@ fn lightsets_validate_against_the_schema() {
     }
 }
 
-/// `max_error` picks the smallest power of two meeting the target.
+/// `max_error` picks the fewest lights meeting the target: n lights meet it, n − 1 do not, and
+/// n is at most the smallest power of two that meets it (what the ladder alone gave).
 #[test]
-fn max_error_picks_the_smallest_power_of_two() {
+fn max_error_picks_the_fewest_lights_meeting_the_target() {
     let mut ex = Extractor::new();
-    for name in ["sunrise.exr", "overcast-plaza.exr", "interior.exr"] {
+    for (name, target) in [
+        ("sunrise.exr", 0.01),
+        ("overcast-plaza.exr", 0.01),
+        ("interior.exr", 0.005),
+    ] {
         let map = load(name);
         let req = LightRequest {
             lights: 1024,
-            max_error: Some(0.01),
+            max_error: Some(target),
             ..LightRequest::default()
         };
         let set = lightset_for_map(&mut ex, &map, &req, name);
         let n = set.lights.len();
-        assert!(n.is_power_of_two(), "{name}: {n}");
         assert_eq!(set.diagnostics.max_error_met, Some(true), "{name}");
-        assert!(set.diagnostics.estimated_error.unwrap() <= 0.01);
-        if n > 1 {
-            let smaller = LightRequest {
-                lights: n / 2,
+        let error = set.diagnostics.estimated_error.unwrap();
+        assert!(error <= target, "{name}: {error} at {n}");
+        let mut error_at = |lights: usize| {
+            let req = LightRequest {
+                lights,
                 max_error: None,
                 ..LightRequest::default()
             };
-            let s = lightset_for_map(&mut ex, &map, &smaller, name);
+            let s = lightset_for_map(&mut ex, &map, &req, name);
+            assert_eq!(s.lights.len(), lights, "{name}");
+            s.diagnostics.estimated_error.unwrap()
+        };
+        // The same lights as asking for n outright.
+        assert_eq!(error_at(n), error, "{name}");
+        if n > 1 {
+            let fewer = error_at(n - 1);
             assert!(
-                s.diagnostics.estimated_error.unwrap() > 0.01,
-                "{name}: {} lights would have done",
-                n / 2
+                fewer > target,
+                "{name}: {} lights would have done ({fewer})",
+                n - 1
             );
         }
+        let power = n.next_power_of_two();
+        assert!(error_at(power) <= target, "{name}: the ladder's {power}");
+        if power > 1 {
+            assert!(error_at(power / 2) > target, "{name}: {}", power / 2);
+        }
+        eprintln!("{name}: {n} lights meet {target} ({error:.5}), the ladder gave {power}");
     }
 }
 

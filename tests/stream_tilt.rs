@@ -197,65 +197,43 @@ fn a_streams_shadows_are_no_worse_than_median_cuts_on_an_overcast_plaza() {
 #[ignore = "measurement: prints the stream's shadowed error per map (minutes)"]
 fn stream_shadow_table() {
     use std::sync::Mutex;
-    let mut maps: Vec<(String, EnvMap)> = common::every_map();
-    if let Ok(dir) = std::env::var("VEMLIGHT_EXTRA_MAPS") {
-        let mut paths: Vec<_> = std::fs::read_dir(&dir)
-            .expect("VEMLIGHT_EXTRA_MAPS is a directory")
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|x| x == "exr" || x == "hdr"))
-            .collect();
-        paths.sort();
-        for p in paths {
-            let name = p.file_stem().expect("name").to_string_lossy().to_string();
-            maps.push((name, EnvMap::open(&p, None, 1 << 26).expect("a map")));
-        }
-    }
+    let mut maps: Vec<(String, EnvMap)> = common::every_map_and_extra();
     if let Ok(only) = std::env::var("VEMLIGHT_ONLY_MAPS") {
         let words: Vec<&str> = only.split(',').filter(|w| !w.is_empty()).collect();
         maps.retain(|(name, _)| words.iter().any(|w| name.contains(w)));
     }
     let every_frame = std::env::var_os("VEMLIGHT_EVERY_FRAME").is_some();
     let n = 64;
-    let jobs = Mutex::new((0..maps.len()).rev().collect::<Vec<_>>());
     let rows: Mutex<Vec<(String, f64, f64, f64)>> = Mutex::new(Vec::new());
-    let threads = std::thread::available_parallelism().map_or(2, |n| n.get().min(8));
-    std::thread::scope(|s| {
-        for _ in 0..threads {
-            s.spawn(|| {
-                while let Some(i) = jobs.lock().expect("jobs").pop() {
-                    let (name, map) = &maps[i];
-                    let dirs = LatLongDirs::new(map.width, map.height);
-                    let (mut tilted, mut plain) = (stream(true), stream(false));
-                    let mut line = format!("{name:<24}");
-                    let (mut worst_tilted, mut worst_plain, mut worst_single) =
-                        (0.0f64, 0.0f64, 0.0f64);
-                    for t in 0..=20 {
-                        let frame = turned(&dirs, map, 0.25 * t as f64);
-                        let a = tilted.extract(&frame, &opts(n, Method::Voronoi)).lights;
-                        let b = plain.extract(&frame, &opts(n, Method::Voronoi)).lights;
-                        if !every_frame && t % 8 != 4 {
-                            continue;
-                        }
-                        let truth = Truth::new(&frame, Domain::Sphere);
-                        let run = |m| Extractor::new().extract(&frame, &opts(n, m)).lights;
-                        let mc = truth.shadowed_mean(&run(Method::MedianCut));
-                        let single = truth.shadowed_mean(&run(Method::Voronoi)) / mc;
-                        let (ra, rb) = (truth.shadowed_mean(&a) / mc, truth.shadowed_mean(&b) / mc);
-                        line += &format!("  f{t}: {ra:.2} ({rb:.2} untilted, {single:.2} single)");
-                        worst_tilted = worst_tilted.max(ra);
-                        worst_plain = worst_plain.max(rb);
-                        worst_single = worst_single.max(single);
-                    }
-                    eprintln!("{line}");
-                    rows.lock().expect("rows").push((
-                        name.clone(),
-                        worst_tilted,
-                        worst_plain,
-                        worst_single,
-                    ));
-                }
-            });
+    common::on_every_map(&maps, |name, map| {
+        let dirs = LatLongDirs::new(map.width, map.height);
+        let (mut tilted, mut plain) = (stream(true), stream(false));
+        let mut line = format!("{name:<24}");
+        let (mut worst_tilted, mut worst_plain, mut worst_single) = (0.0f64, 0.0f64, 0.0f64);
+        for t in 0..=20 {
+            let frame = turned(&dirs, map, 0.25 * t as f64);
+            let a = tilted.extract(&frame, &opts(n, Method::Voronoi)).lights;
+            let b = plain.extract(&frame, &opts(n, Method::Voronoi)).lights;
+            if !every_frame && t % 8 != 4 {
+                continue;
+            }
+            let truth = Truth::new(&frame, Domain::Sphere);
+            let run = |m| Extractor::new().extract(&frame, &opts(n, m)).lights;
+            let mc = truth.shadowed_mean(&run(Method::MedianCut));
+            let single = truth.shadowed_mean(&run(Method::Voronoi)) / mc;
+            let (ra, rb) = (truth.shadowed_mean(&a) / mc, truth.shadowed_mean(&b) / mc);
+            line += &format!("  f{t}: {ra:.2} ({rb:.2} untilted, {single:.2} single)");
+            worst_tilted = worst_tilted.max(ra);
+            worst_plain = worst_plain.max(rb);
+            worst_single = worst_single.max(single);
         }
+        eprintln!("{line}");
+        rows.lock().expect("rows").push((
+            name.to_string(),
+            worst_tilted,
+            worst_plain,
+            worst_single,
+        ));
     });
     let rows = rows.into_inner().expect("rows");
     let over = |f: fn(&(String, f64, f64, f64)) -> f64| rows.iter().filter(|r| f(r) > 1.0).count();

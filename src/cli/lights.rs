@@ -16,7 +16,8 @@ pub struct LightsArgs {
     /// Number of lights (1–1024); with --max-error, the most allowed.
     #[arg(long, short = 'n', default_value_t = 64)]
     pub lights: usize,
-    /// Pick the smallest power-of-two light count whose relative diffuse irradiance error is ≤ E.
+    /// Pick the fewest lights (at most --lights) whose estimated relative diffuse irradiance
+    /// error is ≤ E; `diagnostics.lights_chosen` says how many.
     #[arg(long, value_name = "E")]
     pub max_error: Option<f64>,
     #[command(flatten)]

@@ -107,15 +107,75 @@ impl AdaptiveCount {
     }
 }
 
-/// The light counts an error target chooses among, at most `max`: the powers of two below it,
-/// then `max` (`vemlight lights --max-error`, `POST /v1/lights?max_error`, and a stream's
-/// [`AdaptiveCount`]).
+/// The light counts a stream's error target moves between ([`AdaptiveCount`]), and the first
+/// counts a single map's search tries ([`fewest_meeting`]), at most `max`: the powers of two
+/// below it, then `max`.
 pub fn count_ladder(max: usize) -> Vec<usize> {
     let mut out: Vec<usize> = std::iter::successors(Some(1usize), |n| Some(n * 2))
         .take_while(|&n| n < max)
         .collect();
     out.push(max);
     out
+}
+
+/// What [`fewest_meeting`] found: the count, what `run` gave for it and its error.
+#[derive(Clone, Debug)]
+pub struct Fewest<T> {
+    pub count: usize,
+    pub value: T,
+    pub error: f64,
+    /// Whether `error` meets the target (false only when not even `max` lights do).
+    pub met: bool,
+}
+
+/// The fewest lights, at most `max`, whose error meets `target` (`vemlight lights --max-error`,
+/// `POST /v1/lights?max_error`): `run(n)` extracts n lights and estimates their error. The
+/// ladder of powers of two ([`count_ladder`]) finds the first count that meets the target, then
+/// halving the gap between it and the power below, which did not, finds the fewest between (about
+/// log₂ of the gap more extractions). The estimate falls with the count nearly everywhere but not
+/// strictly, so the count returned meets the target and the next smaller count tried did not. A
+/// stream keeps to the ladder ([`AdaptiveCount`]): each count it serves is a set of lights
+/// followed frame to frame, and fewer, coarser steps change it less often.
+pub fn fewest_meeting<T>(
+    max: usize,
+    target: f64,
+    mut run: impl FnMut(usize) -> (T, f64),
+) -> Fewest<T> {
+    let mut missed = 0;
+    let mut found = None;
+    for n in count_ladder(max.max(1)) {
+        let (value, error) = run(n);
+        let met = error <= target;
+        if met || n >= max {
+            found = Some(Fewest {
+                count: n,
+                value,
+                error,
+                met,
+            });
+            break;
+        }
+        missed = n;
+    }
+    let mut best = found.expect("the ladder ends at max");
+    if !best.met {
+        return best;
+    }
+    while best.count - missed > 1 {
+        let n = missed + (best.count - missed) / 2;
+        let (value, error) = run(n);
+        if error <= target {
+            best = Fewest {
+                count: n,
+                value,
+                error,
+                met: true,
+            };
+        } else {
+            missed = n;
+        }
+    }
+    best
 }
 
 /// An unmarked light takes a marked one's place only when it is worth this much more.
@@ -197,6 +257,83 @@ pub fn remainder_sh(sh9: &[f32], lights: &[Light]) -> Vec<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// With an error that falls as 1/n, the search finds exactly the fewest count, trying the
+    /// ladder up to the first power that meets the target and then about log₂ of the gap.
+    #[test]
+    fn the_fewest_count_that_meets_a_falling_error() {
+        for (max, fewest) in [
+            (256, 37),
+            (256, 33),
+            (256, 64),
+            (256, 65),
+            (100, 100),
+            (64, 1),
+        ] {
+            let target = 1.0 / fewest as f64;
+            let mut tried = Vec::new();
+            let f = fewest_meeting(max, target, |n| {
+                tried.push(n);
+                (n, 1.0 / n as f64)
+            });
+            assert_eq!(
+                (f.count, f.value, f.met),
+                (fewest, fewest, true),
+                "{tried:?}"
+            );
+            assert_eq!(f.error, target);
+            let ladder = count_ladder(max)
+                .iter()
+                .take_while(|&&n| n < fewest)
+                .count()
+                + 1;
+            let gap = fewest.next_power_of_two().min(max) - fewest.next_power_of_two() / 2;
+            let most = ladder + (usize::BITS - gap.leading_zeros()) as usize;
+            assert!(tried.len() <= most, "{} tries: {tried:?}", tried.len());
+            // Each count is extracted once.
+            let mut unique = tried.clone();
+            unique.sort_unstable();
+            unique.dedup();
+            assert_eq!(unique.len(), tried.len(), "{tried:?}");
+        }
+    }
+
+    /// Where not even `max` lights meet the target, `max` is returned, marked unmet.
+    #[test]
+    fn the_cap_when_no_count_meets_the_target() {
+        let f = fewest_meeting(48, 1e-6, |n| (n, 1.0 / n as f64));
+        assert_eq!((f.count, f.met), (48, false));
+        assert_eq!(f.error, 1.0 / 48.0);
+    }
+
+    /// An error that does not fall everywhere (as a real estimate may not): the count returned
+    /// meets the target, and every smaller count the search tried misses it.
+    #[test]
+    fn a_count_that_meets_the_target_where_the_error_is_not_monotone() {
+        // Falls as 1/n, with every third count raised by half.
+        let error = |n: usize| (1.0 + 0.5 * f64::from(n.is_multiple_of(3))) / n as f64;
+        for target in [0.1, 0.03, 0.02, 0.011, 0.007] {
+            let mut tried = Vec::new();
+            let f = fewest_meeting(256, target, |n| {
+                tried.push(n);
+                (n, error(n))
+            });
+            assert!(f.met && error(f.count) <= target, "{target}: {f:?}");
+            for &n in tried.iter().filter(|&&n| n < f.count) {
+                assert!(
+                    error(n) > target,
+                    "{target}: {n} met it, {} returned",
+                    f.count
+                );
+            }
+            // No worse than the ladder alone.
+            let ladder = count_ladder(256)
+                .into_iter()
+                .find(|&n| error(n) <= target)
+                .unwrap();
+            assert!(f.count <= ladder, "{target}: {} > {ladder}", f.count);
+        }
+    }
 
     fn light(id: u32, lum: f32, dir: [f32; 3]) -> Light {
         Light {

@@ -27,6 +27,50 @@ pub fn every_map() -> Vec<(String, EnvMap)> {
     maps
 }
 
+/// [`every_map`], then the .exr and .hdr maps of the directory `$VEMLIGHT_EXTRA_MAPS` when it is
+/// set (the held-out maps of `scripts/heldout-maps.sh`, say), in name order: what the ignored
+/// measurement tests run on.
+pub fn every_map_and_extra() -> Vec<(String, EnvMap)> {
+    let mut maps = every_map();
+    if let Ok(dir) = std::env::var("VEMLIGHT_EXTRA_MAPS") {
+        let mut paths: Vec<_> = std::fs::read_dir(&dir)
+            .expect("VEMLIGHT_EXTRA_MAPS is a directory")
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "exr" || x == "hdr"))
+            .collect();
+        paths.sort();
+        for p in paths {
+            let name = p.file_stem().expect("name").to_string_lossy().to_string();
+            maps.push((name, EnvMap::open(&p, None, 1 << 26).expect("a map")));
+        }
+    }
+    maps
+}
+
+/// Runs `job(name, map)` on every one of `maps` on a pool of threads (one a core, at most 8),
+/// the maps taken in order: the ignored measurement tests' loop.
+pub fn on_every_map(maps: &[(String, EnvMap)], job: impl Fn(&str, &EnvMap) + Sync) {
+    let next = std::sync::Mutex::new(0usize);
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get().min(8));
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            s.spawn(|| {
+                loop {
+                    let i = {
+                        let mut next = next.lock().expect("the next map");
+                        *next += 1;
+                        *next - 1
+                    };
+                    let Some((name, map)) = maps.get(i) else {
+                        break;
+                    };
+                    job(name, map);
+                }
+            });
+        }
+    });
+}
+
 /// Sorts `(ratio, case)` rows worst first and names the first five: "1.36 (case), …".
 pub fn worst_first(rows: &mut [(f64, String)]) -> String {
     rows.sort_by(|a, b| b.0.total_cmp(&a.0));
