@@ -4,8 +4,8 @@
 //! meets E, each one's true diffuse error (ALGORITHMS.md §8) and shadowed error as a ratio to
 //! median cut's at the same count (§9): the measurement behind PERFORMANCE.md "The adaptive light
 //! count". `cargo test --release --test max_error -- --ignored --nocapture` (about a minute on
-//! two cores for the 13 maps, five with the 18 held out; `VEMLIGHT_EXTRA_MAPS=DIR` adds a directory of maps, such as the
-//! held-out ones of `scripts/heldout-maps.sh`).
+//! two cores for the 13 maps, five with the 18 held out; `VEMLIGHT_EXTRA_MAPS=DIR` adds a
+//! directory of maps, such as the held-out ones of `scripts/heldout-maps.sh`).
 
 mod common;
 
