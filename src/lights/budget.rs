@@ -133,7 +133,8 @@ pub struct Fewest<T> {
 /// ladder of powers of two ([`count_ladder`]) finds the first count that meets the target, then
 /// halving the gap between it and the power below, which did not, finds the fewest between (about
 /// log₂ of the gap more extractions). The estimate falls with the count nearly everywhere but not
-/// strictly, so the count returned meets the target and the next smaller count tried did not. A
+/// strictly, so what is certain is that the count returned meets the target and one light fewer
+/// does not (a smaller count untried might). A
 /// stream keeps to the ladder ([`AdaptiveCount`]): each count it serves is a set of lights
 /// followed frame to frame, and fewer, coarser steps change it less often.
 pub fn fewest_meeting<T>(
@@ -307,7 +308,7 @@ mod tests {
     }
 
     /// An error that does not fall everywhere (as a real estimate may not): the count returned
-    /// meets the target, and every smaller count the search tried misses it.
+    /// meets the target, one fewer was tried and misses it, as does every smaller count tried.
     #[test]
     fn a_count_that_meets_the_target_where_the_error_is_not_monotone() {
         // Falls as 1/n, with every third count raised by half.
@@ -319,6 +320,8 @@ mod tests {
                 (n, error(n))
             });
             assert!(f.met && error(f.count) <= target, "{target}: {f:?}");
+            // One light fewer was tried, and missed.
+            assert!(f.count == 1 || tried.contains(&(f.count - 1)), "{tried:?}");
             for &n in tried.iter().filter(|&&n| n < f.count) {
                 assert!(
                     error(n) > target,
