@@ -520,6 +520,53 @@ async fn post_returns_the_cli_lightset_for_every_map() {
     }
 }
 
+/// POST with `max_error`: the fewest lights meeting it, the same set the CLI gives, the count
+/// chosen in `lights_chosen` and not counted as a shortfall.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn post_with_max_error_returns_the_fewest_lights_meeting_it() {
+    let s = start_default(5.0).await;
+    let path = data_path("sunrise.exr");
+    let resp = reqwest::Client::new()
+        .post(format!(
+            "http://{}/v1/lights?lights=64&max_error=0.01",
+            s.addr
+        ))
+        .body(std::fs::read(&path).unwrap())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), 200);
+    let doc: serde_json::Value = resp.json().await.unwrap();
+    assert_valid(&lightset_validator(), &doc);
+    let d = &doc["diagnostics"];
+    let n = doc["lights"].as_array().unwrap().len();
+    assert_eq!(d["lights_chosen"], n, "{d}");
+    assert_eq!(d["lights_requested"], 64, "{d}");
+    assert!(d["lights_short"].is_null(), "{d}");
+    assert_eq!(d["max_error_met"], true, "{d}");
+    assert!(d["estimated_error"].as_f64().unwrap() <= 0.01, "{d}");
+    let cli = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args(["lights", path.to_str().unwrap(), "--max-error", "0.01"])
+        .output()
+        .unwrap();
+    let cli: serde_json::Value = serde_json::from_slice(&cli.stdout).unwrap();
+    assert_eq!(doc["lights"], cli["lights"]);
+    // One light fewer misses the target (the smallest power of two meeting it was 16 here).
+    assert!(n > 1, "one light meets 1 % on sunrise.exr?");
+    let fewer = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .args([
+            "lights",
+            path.to_str().unwrap(),
+            "--lights",
+            &(n - 1).to_string(),
+        ])
+        .output()
+        .unwrap();
+    let fewer: serde_json::Value = serde_json::from_slice(&fewer.stdout).unwrap();
+    let e = fewer["diagnostics"]["estimated_error"].as_f64().unwrap();
+    assert!(e > 0.01, "{} lights meet 1 % too ({e})", n - 1);
+}
+
 async fn problem(resp: reqwest::Response, status: u16) -> serde_json::Value {
     assert_eq!(resp.status(), status);
     assert_eq!(
