@@ -32,7 +32,7 @@ struct Case {
 fn max_error_table() {
     let maps: Vec<(String, EnvMap)> = common::every_map_and_extra();
     let cases: Mutex<Vec<Case>> = Mutex::new(Vec::new());
-    common::on_every_map(&maps, |name, map| {
+    common::on_each(&maps, |(name, map)| {
         let truth = Truth::new(map, Domain::Sphere);
         let run = |method, lights| {
             let opts = ExtractOptions {

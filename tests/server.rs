@@ -501,12 +501,7 @@ async fn post_returns_the_cli_lightset_for_every_map() {
         assert_eq!(resp.status(), 200, "{name}");
         let doc: serde_json::Value = resp.json().await.unwrap();
         assert_valid(&validator, &doc);
-        let cli = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-            .args(["lights", path.to_str().unwrap(), "--lights", "32"])
-            .output()
-            .unwrap();
-        assert!(cli.status.success());
-        let cli: serde_json::Value = serde_json::from_slice(&cli.stdout).unwrap();
+        let cli = cli_lightset(&path, &["--lights", "32"]);
         assert_eq!(
             doc["lights"], cli["lights"],
             "{name}: lights differ from the CLI's"
@@ -545,26 +540,29 @@ async fn post_with_max_error_returns_the_fewest_lights_meeting_it() {
     assert!(d["lights_short"].is_null(), "{d}");
     assert_eq!(d["max_error_met"], true, "{d}");
     assert!(d["estimated_error"].as_f64().unwrap() <= 0.01, "{d}");
-    let cli = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["lights", path.to_str().unwrap(), "--max-error", "0.01"])
-        .output()
-        .unwrap();
-    let cli: serde_json::Value = serde_json::from_slice(&cli.stdout).unwrap();
+    let cli = cli_lightset(&path, &["--max-error", "0.01"]);
     assert_eq!(doc["lights"], cli["lights"]);
     // One light fewer misses the target (the smallest power of two meeting it was 16 here).
     assert!(n > 1, "one light meets 1 % on sunrise.exr?");
-    let fewer = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args([
-            "lights",
-            path.to_str().unwrap(),
-            "--lights",
-            &(n - 1).to_string(),
-        ])
-        .output()
-        .unwrap();
-    let fewer: serde_json::Value = serde_json::from_slice(&fewer.stdout).unwrap();
+    let fewer = cli_lightset(&path, &["--lights", &(n - 1).to_string()]);
     let e = fewer["diagnostics"]["estimated_error"].as_f64().unwrap();
     assert!(e > 0.01, "{} lights meet 1 % too ({e})", n - 1);
+}
+
+/// The LightSet `vemlight lights PATH ARGS…` prints: what the daemon's sets are compared with.
+fn cli_lightset(path: &std::path::Path, args: &[&str]) -> serde_json::Value {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
+        .arg("lights")
+        .arg(path)
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
 }
 
 async fn problem(resp: reqwest::Response, status: u16) -> serde_json::Value {
@@ -1409,12 +1407,7 @@ async fn frames_streamed_by_rows_give_the_lights_of_the_whole_frame() {
     let doc: serde_json::Value = serde_json::from_slice(&hub.latest().unwrap().json).unwrap();
     assert_valid(&lightset_validator(), &doc);
     let path = data_path("sunrise.exr");
-    let cli = std::process::Command::new(env!("CARGO_BIN_EXE_vemlight"))
-        .args(["lights", path.to_str().unwrap(), "--lights", "64"])
-        .output()
-        .unwrap();
-    assert!(cli.status.success());
-    let cli: serde_json::Value = serde_json::from_slice(&cli.stdout).unwrap();
+    let cli = cli_lightset(&path, &["--lights", "64"]);
     assert_eq!(doc["lights"], cli["lights"], "lights differ from the CLI's");
     assert_eq!(doc["sh9"], cli["sh9"]);
     assert_eq!(doc["total_irradiance"], cli["total_irradiance"]);

@@ -54,46 +54,40 @@ fn sweep(yaw_deg: f64) {
             }
         }
     }
-    let jobs = Mutex::new(jobs);
     let rows: Mutex<Vec<Row>> = Mutex::new(Vec::new());
-    let threads = std::thread::available_parallelism().map_or(2, |n| n.get().min(8));
-    std::thread::scope(|s| {
-        for _ in 0..threads {
-            s.spawn(|| {
-                while let Some((e, t, c)) = jobs.lock().expect("queue").pop() {
-                    let name = format!("sun {e}° turbidity {t} clouds {c} turned {yaw_deg}°");
-                    let map = still_sky(1024, e, t, c);
-                    let map = if yaw_deg == 0.0 {
-                        map
-                    } else {
-                        LatLongDirs::new(map.width, map.height)
-                            .rotated(&map, DQuat::from_rotation_y(yaw_deg.to_radians()))
-                    };
-                    let truth = Truth::new(&map, Domain::Sphere);
-                    for n in COUNTS {
-                        let errors = |m| {
-                            let opts = ExtractOptions {
-                                lights: n,
-                                domain: Domain::Sphere,
-                                method: m,
-                                side: None,
-                            };
-                            let lights = Extractor::new().extract(&map, &opts).lights;
-                            (
-                                truth.diffuse.error(&lights).rel_rms,
-                                truth.shadowed_mean(&lights),
-                            )
-                        };
-                        let ours = errors(Method::Voronoi);
-                        let diffuse = ours.0 / errors(Method::KMeans).0;
-                        let shadowed = ours.1 / errors(Method::MedianCut).1;
-                        eprintln!(
-                            "{name:<48} N={n:<4} diffuse {diffuse:.3} × k-means, shadowed {shadowed:.3} × median cut"
-                        );
-                        rows.lock().expect("rows").push((n, name.clone(), diffuse, shadowed));
-                    }
-                }
-            });
+    common::on_each(&jobs, |&(e, t, c)| {
+        let name = format!("sun {e}° turbidity {t} clouds {c} turned {yaw_deg}°");
+        let map = still_sky(1024, e, t, c);
+        let map = if yaw_deg == 0.0 {
+            map
+        } else {
+            LatLongDirs::new(map.width, map.height)
+                .rotated(&map, DQuat::from_rotation_y(yaw_deg.to_radians()))
+        };
+        let truth = Truth::new(&map, Domain::Sphere);
+        for n in COUNTS {
+            let errors = |m| {
+                let opts = ExtractOptions {
+                    lights: n,
+                    domain: Domain::Sphere,
+                    method: m,
+                    side: None,
+                };
+                let lights = Extractor::new().extract(&map, &opts).lights;
+                (
+                    truth.diffuse.error(&lights).rel_rms,
+                    truth.shadowed_mean(&lights),
+                )
+            };
+            let ours = errors(Method::Voronoi);
+            let diffuse = ours.0 / errors(Method::KMeans).0;
+            let shadowed = ours.1 / errors(Method::MedianCut).1;
+            eprintln!(
+                "{name:<48} N={n:<4} diffuse {diffuse:.3} × k-means, shadowed {shadowed:.3} × median cut"
+            );
+            rows.lock()
+                .expect("rows")
+                .push((n, name.clone(), diffuse, shadowed));
         }
     });
     let rows = rows.into_inner().expect("rows");

@@ -205,7 +205,7 @@ fn stream_shadow_table() {
     let every_frame = std::env::var_os("VEMLIGHT_EVERY_FRAME").is_some();
     let n = 64;
     let rows: Mutex<Vec<(String, f64, f64, f64)>> = Mutex::new(Vec::new());
-    common::on_every_map(&maps, |name, map| {
+    common::on_each(&maps, |(name, map)| {
         let dirs = LatLongDirs::new(map.width, map.height);
         let (mut tilted, mut plain) = (stream(true), stream(false));
         let mut line = format!("{name:<24}");

@@ -47,9 +47,9 @@ pub fn every_map_and_extra() -> Vec<(String, EnvMap)> {
     maps
 }
 
-/// Runs `job(name, map)` on every one of `maps` on a pool of threads (one a core, at most 8),
-/// the maps taken in order: the ignored measurement tests' loop.
-pub fn on_every_map(maps: &[(String, EnvMap)], job: impl Fn(&str, &EnvMap) + Sync) {
+/// Runs `job` on each of `items` on a pool of threads (one a core, at most 8), the items taken
+/// in order: the ignored measurement tests' loop over maps or skies.
+pub fn on_each<T: Sync>(items: &[T], job: impl Fn(&T) + Sync) {
     let next = std::sync::Mutex::new(0usize);
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get().min(8));
     std::thread::scope(|s| {
@@ -57,14 +57,14 @@ pub fn on_every_map(maps: &[(String, EnvMap)], job: impl Fn(&str, &EnvMap) + Syn
             s.spawn(|| {
                 loop {
                     let i = {
-                        let mut next = next.lock().expect("the next map");
+                        let mut next = next.lock().expect("the next item");
                         *next += 1;
                         *next - 1
                     };
-                    let Some((name, map)) = maps.get(i) else {
+                    let Some(item) = items.get(i) else {
                         break;
                     };
-                    job(name, map);
+                    job(item);
                 }
             });
         }
