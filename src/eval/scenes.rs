@@ -237,6 +237,25 @@ pub fn still_sky_model(
     })
 }
 
+/// A photo studio: four large softboxes (11–15° in radius, each of even radiance, 9–25° up), some
+/// overlapping, over a dark room, and a small bright lamp (0.5°). Large even sources are where a
+/// warp by a power of Y near 1 crowds its points, far from the k-means fixed point (ALGORITHMS.md
+/// §4.2, "Steps").
+pub fn softbox_studio(width: usize) -> EnvMap {
+    let mut map = LatLongDirs::new(width, width / 2).map(|_| [0.01, 0.01, 0.01]);
+    // (elevation°, azimuth°, radius°, share of the light already there)
+    for (elev, azim, radius, share) in [
+        (22.0, 56.0, 11.0, 1.3),
+        (9.0, 267.0, 12.0, 2.0),
+        (16.0, 245.0, 15.0, 0.6),
+        (25.0, 154.0, 15.0, 1.3),
+        (25.0, 214.0, 0.5, 0.2),
+    ] {
+        map = with_lamp(&map, dir_from_elev_azim(elev, azim), radius, share);
+    }
+    map
+}
+
 /// A room lit by a window and a lamp: dim walls, a brighter floor patch, a window of bright
 /// daylight on the −Z wall (about 30° × 30°), and a small ceiling lamp (1° radius) carrying 40 %
 /// of the room's other light.
