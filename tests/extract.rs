@@ -1224,7 +1224,8 @@ fn a_low_clear_sun_at_256_lights_is_near_the_k_means_floor() {
 /// that it keeps testing them.
 #[test]
 fn a_softbox_studio_at_256_lights_takes_the_steps_it_needs() {
-    let map = vemlight::eval::scenes::softbox_studio(1024);
+    use vemlight::eval::scenes::{LampScene, lamp_scene};
+    let map = lamp_scene(LampScene::Softboxes, 3, 1024);
     let reference = IrradianceReference::from_map(&map, Domain::Sphere);
     let err = |ex: &mut Extractor, m| {
         reference

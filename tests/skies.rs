@@ -9,21 +9,12 @@
 
 mod common;
 
-use common::worst_first;
-use glam::DQuat;
-use std::sync::Mutex;
-use vemlight::eval::accuracy::Truth;
-use vemlight::eval::scenes::{LatLongDirs, still_sky};
-use vemlight::lights::{ExtractOptions, Extractor, Method};
-use vemlight::mapping::Domain;
+use vemlight::eval::scenes::still_sky;
 
 const ELEVATIONS: [f64; 8] = [2.0, 4.0, 9.0, 15.0, 25.0, 35.0, 48.0, 60.0];
 const TURBIDITIES: [f64; 3] = [2.0, 5.0, 9.0];
 const CLOUDS: [f64; 3] = [0.0, 0.3, 0.7];
 const COUNTS: [usize; 5] = [16, 32, 64, 128, 256];
-
-/// One case: (N, sky name, diffuse ÷ k-means, shadowed ÷ median cut).
-type Row = (usize, String, f64, f64);
 
 /// Every case prints its two ratios; per N the worst of each is named and the cases over the
 /// targets (1.25 × k-means, 1 × median cut) counted. The bounds are loose (the worst today are
@@ -54,58 +45,14 @@ fn sweep(yaw_deg: f64) {
             }
         }
     }
-    let rows: Mutex<Vec<Row>> = Mutex::new(Vec::new());
-    common::on_each(&jobs, |&(e, t, c)| {
+    let rows = common::sweep(&jobs, &COUNTS, |&(e, t, c)| {
         let name = format!("sun {e}° turbidity {t} clouds {c} turned {yaw_deg}°");
-        let map = still_sky(1024, e, t, c);
-        let map = if yaw_deg == 0.0 {
-            map
-        } else {
-            LatLongDirs::new(map.width, map.height)
-                .rotated(&map, DQuat::from_rotation_y(yaw_deg.to_radians()))
-        };
-        let truth = Truth::new(&map, Domain::Sphere);
-        for n in COUNTS {
-            let errors = |m| {
-                let opts = ExtractOptions {
-                    lights: n,
-                    domain: Domain::Sphere,
-                    method: m,
-                    side: None,
-                };
-                let lights = Extractor::new().extract(&map, &opts).lights;
-                (
-                    truth.diffuse.error(&lights).rel_rms,
-                    truth.shadowed_mean(&lights),
-                )
-            };
-            let ours = errors(Method::Voronoi);
-            let diffuse = ours.0 / errors(Method::KMeans).0;
-            let shadowed = ours.1 / errors(Method::MedianCut).1;
-            eprintln!(
-                "{name:<48} N={n:<4} diffuse {diffuse:.3} × k-means, shadowed {shadowed:.3} × median cut"
-            );
-            rows.lock()
-                .expect("rows")
-                .push((n, name.clone(), diffuse, shadowed));
-        }
+        (
+            name,
+            common::turned_about_y(still_sky(1024, e, t, c), yaw_deg),
+        )
     });
-    let rows = rows.into_inner().expect("rows");
-    let (mut worst_diffuse, mut worst_shadowed) = (0.0f64, 0.0f64);
-    for n in COUNTS {
-        let at: Vec<&Row> = rows.iter().filter(|r| r.0 == n).collect();
-        let mut diffuse: Vec<(f64, String)> = at.iter().map(|r| (r.2, r.1.clone())).collect();
-        let mut shadowed: Vec<(f64, String)> = at.iter().map(|r| (r.3, r.1.clone())).collect();
-        let over_d = diffuse.iter().filter(|r| r.0 > 1.25).count();
-        let over_s = shadowed.iter().filter(|r| r.0 > 1.0).count();
-        let (wd, ws) = (worst_first(&mut diffuse), worst_first(&mut shadowed));
-        eprintln!(
-            "N={n}: {} skies; diffuse over 1.25 × k-means: {over_d}, worst {wd}; shadowed over median cut's: {over_s}, worst {ws}",
-            at.len()
-        );
-        worst_diffuse = worst_diffuse.max(diffuse[0].0);
-        worst_shadowed = worst_shadowed.max(shadowed[0].0);
-    }
+    let (worst_diffuse, worst_shadowed) = common::report_sweep("skies", &rows, &COUNTS);
     assert!(worst_diffuse <= 1.5, "worst diffuse {worst_diffuse:.3}");
     assert!(worst_shadowed <= 2.5, "worst shadowed {worst_shadowed:.3}");
 }

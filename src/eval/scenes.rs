@@ -237,23 +237,86 @@ pub fn still_sky_model(
     })
 }
 
-/// A photo studio: four large softboxes (11–15° in radius, each of even radiance, 9–25° up), some
-/// overlapping, over a dark room, and a small bright lamp (0.5°). Large even sources are where a
-/// warp by a power of Y near 1 crowds its points, far from the k-means fixed point (ALGORITHMS.md
-/// §4.2, "Steps").
-pub fn softbox_studio(width: usize) -> EnvMap {
-    let mut map = LatLongDirs::new(width, width / 2).map(|_| [0.01, 0.01, 0.01]);
-    // (elevation°, azimuth°, radius°, share of the light already there)
-    for (elev, azim, radius, share) in [
-        (22.0, 56.0, 11.0, 1.3),
-        (9.0, 267.0, 12.0, 2.0),
-        (16.0, 245.0, 15.0, 0.6),
-        (25.0, 154.0, 15.0, 1.3),
-        (25.0, 214.0, 0.5, 0.2),
-    ] {
-        map = with_lamp(&map, dir_from_elev_azim(elev, azim), radius, share);
+/// A kind of scene lit by compact and large lamps, drawn at random by [`lamp_scene`]: the hard
+/// cases the real maps and the sky sweep have few of.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LampScene {
+    /// A night street: a dark sky and ground, a moon (0.26°) 10–70° up, and 2–13 street lamps
+    /// (0.3–1.5°) 2–42° up, each adding 3–33 % of the light already there.
+    Night,
+    /// A room lit by 4–15 ceiling lamps (0.8–3.3°) 35–85° up over dim walls, each adding 5–25 %.
+    Ceiling,
+    /// A studio: 2–4 softboxes of even radiance (4–16°) 5–55° up over a dark room, each adding
+    /// 50–250 %, and a small bright lamp (0.5°).
+    Softboxes,
+}
+
+impl LampScene {
+    pub const ALL: [LampScene; 3] = [LampScene::Night, LampScene::Ceiling, LampScene::Softboxes];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            LampScene::Night => "night-street",
+            LampScene::Ceiling => "ceiling-lamps",
+            LampScene::Softboxes => "softboxes",
+        }
     }
-    map
+}
+
+/// A `width` × `width`/2 lat-long scene of `kind`, its lamps drawn from `seed` (a fixed generator,
+/// so a seed is the same scene on every machine).
+pub fn lamp_scene(kind: LampScene, seed: u64, width: usize) -> EnvMap {
+    let mut state = seed.wrapping_mul(7919).wrapping_add(13);
+    let mut uniform = move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let dirs = LatLongDirs::new(width, width / 2);
+    match kind {
+        LampScene::Night => {
+            let mut map = dirs.map(|d| {
+                if d.y >= 0.0 {
+                    let t = d.y as f32;
+                    [0.002 + 0.001 * (1.0 - t), 0.003 + 0.001 * (1.0 - t), 0.006]
+                } else {
+                    [0.0015, 0.0014, 0.0012]
+                }
+            });
+            let elev = 10.0 + 60.0 * uniform();
+            let azim = 360.0 * uniform();
+            map = with_lamp(&map, dir_from_elev_azim(elev, azim), 0.26, 0.3 + uniform());
+            for _ in 0..2 + (uniform() * 12.0) as usize {
+                let (elev, radius) = (2.0 + 40.0 * uniform(), 0.3 + 1.2 * uniform());
+                let dir = dir_from_elev_azim(elev, 360.0 * uniform());
+                map = with_lamp(&map, dir, radius, 0.03 + 0.3 * uniform());
+            }
+            map
+        }
+        LampScene::Ceiling => {
+            let mut map = dirs.map(|d| {
+                let wall = if d.y < -0.3 { 0.04 } else { 0.06 };
+                [wall, wall * 0.97, wall * 0.9]
+            });
+            for _ in 0..4 + (uniform() * 12.0) as usize {
+                let (elev, radius) = (35.0 + 50.0 * uniform(), 0.8 + 2.5 * uniform());
+                let dir = dir_from_elev_azim(elev, 360.0 * uniform());
+                map = with_lamp(&map, dir, radius, 0.05 + 0.2 * uniform());
+            }
+            map
+        }
+        LampScene::Softboxes => {
+            let mut map = dirs.map(|_| [0.01, 0.01, 0.01]);
+            for _ in 0..2 + (uniform() * 3.0) as usize {
+                let (elev, radius) = (5.0 + 50.0 * uniform(), 4.0 + 12.0 * uniform());
+                let dir = dir_from_elev_azim(elev, 360.0 * uniform());
+                map = with_lamp(&map, dir, radius, 0.5 + 2.0 * uniform());
+            }
+            let dir = dir_from_elev_azim(20.0 + 40.0 * uniform(), 360.0 * uniform());
+            with_lamp(&map, dir, 0.5, 0.2)
+        }
+    }
 }
 
 /// A room lit by a window and a lamp: dim walls, a brighter floor patch, a window of bright

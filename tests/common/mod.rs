@@ -81,6 +81,92 @@ pub fn worst_first(rows: &mut [(f64, String)]) -> String {
         .join(", ")
 }
 
+/// One case of a sweep: (N, map name, diffuse ÷ k-means, shadowed ÷ median cut).
+pub type SweepRow = (usize, String, f64, f64);
+
+/// The default's lights for `map` at `n` lights on the sphere, scored against the two anchors
+/// (ALGORITHMS.md §9–§10): its diffuse error ÷ converged k-means', and its shadowed error ÷ median
+/// cut's.
+pub fn against_anchors(
+    map: &EnvMap,
+    truth: &vemlight::eval::accuracy::Truth,
+    n: usize,
+) -> (f64, f64) {
+    use vemlight::lights::{ExtractOptions, Extractor, Method};
+    let errors = |method| {
+        let opts = ExtractOptions {
+            lights: n,
+            domain: vemlight::mapping::Domain::Sphere,
+            method,
+            side: None,
+        };
+        let lights = Extractor::new().extract(map, &opts).lights;
+        (
+            truth.diffuse.error(&lights).rel_rms,
+            truth.shadowed_mean(&lights),
+        )
+    };
+    let ours = errors(Method::Voronoi);
+    (
+        ours.0 / errors(Method::KMeans).0,
+        ours.1 / errors(Method::MedianCut).1,
+    )
+}
+
+/// `map` turned `yaw_deg` about +Y (itself at 0°).
+pub fn turned_about_y(map: EnvMap, yaw_deg: f64) -> EnvMap {
+    if yaw_deg == 0.0 {
+        return map;
+    }
+    vemlight::eval::scenes::LatLongDirs::new(map.width, map.height)
+        .rotated(&map, glam::DQuat::from_rotation_y(yaw_deg.to_radians()))
+}
+
+/// A sweep's cases: each job's named map (made on the pool by `map_of`) at each of `counts`,
+/// scored by [`against_anchors`] and printed as it is done.
+pub fn sweep<J: Sync>(
+    jobs: &[J],
+    counts: &[usize],
+    map_of: impl Fn(&J) -> (String, EnvMap) + Sync,
+) -> Vec<SweepRow> {
+    let rows = std::sync::Mutex::new(Vec::new());
+    on_each(jobs, |job| {
+        let (name, map) = map_of(job);
+        let truth = vemlight::eval::accuracy::Truth::new(&map, vemlight::mapping::Domain::Sphere);
+        for &n in counts {
+            let (diffuse, shadowed) = against_anchors(&map, &truth, n);
+            eprintln!(
+                "{name:<48} N={n:<4} diffuse {diffuse:.3} × k-means, shadowed {shadowed:.3} × median cut"
+            );
+            rows.lock()
+                .expect("rows")
+                .push((n, name.clone(), diffuse, shadowed));
+        }
+    });
+    rows.into_inner().expect("rows")
+}
+
+/// Per N: how many cases of `what` are over 1.25 × k-means and over median cut's shadowed error,
+/// the worst five named; returns the worst diffuse and shadowed ratios of all.
+pub fn report_sweep(what: &str, rows: &[SweepRow], counts: &[usize]) -> (f64, f64) {
+    let (mut worst_diffuse, mut worst_shadowed) = (0.0f64, 0.0f64);
+    for &n in counts {
+        let at: Vec<&SweepRow> = rows.iter().filter(|r| r.0 == n).collect();
+        let mut diffuse: Vec<(f64, String)> = at.iter().map(|r| (r.2, r.1.clone())).collect();
+        let mut shadowed: Vec<(f64, String)> = at.iter().map(|r| (r.3, r.1.clone())).collect();
+        let over_d = diffuse.iter().filter(|r| r.0 > 1.25).count();
+        let over_s = shadowed.iter().filter(|r| r.0 > 1.0).count();
+        let (wd, ws) = (worst_first(&mut diffuse), worst_first(&mut shadowed));
+        eprintln!(
+            "N={n}: {} {what}; diffuse over 1.25 × k-means: {over_d}, worst {wd}; shadowed over median cut's: {over_s}, worst {ws}",
+            at.len()
+        );
+        worst_diffuse = worst_diffuse.max(diffuse.first().map_or(0.0, |r| r.0));
+        worst_shadowed = worst_shadowed.max(shadowed.first().map_or(0.0, |r| r.0));
+    }
+    (worst_diffuse, worst_shadowed)
+}
+
 pub fn data_path(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data")
