@@ -1994,9 +1994,9 @@ impl Extractor {
     }
 
     /// `steps` (at least one) Lloyd steps from the current seeds on `image` (the half-resolution
-    /// copy when `half`), more while they still lower the energy fast on a single map of more than
-    /// [`STEPS_MAX_LIGHTS`] lights, then, from 3 to [`SWAP_MAX_LIGHTS`] lights, the swap rounds; the seeds
-    /// are left at the lights returned, those of the last assignment.
+    /// copy when `half`), more while they still lower the energy fast on a single map of more
+    /// than [`STEPS_MAX_LIGHTS`] lights, then, from 3 to [`SWAP_MAX_LIGHTS`] lights, the swap
+    /// rounds; the seeds are left at the lights returned, those of the last assignment.
     fn settle(&mut self, image: &DomainImage, half: bool, steps: usize) -> Vec<Light> {
         let mut lights = Vec::new();
         // Past the steps asked for, a single map of many lights goes on while its steps still
@@ -2006,17 +2006,19 @@ impl Extractor {
             && self.seeds.len() > STEPS_MAX_LIGHTS;
         let (mut energy, mut fall) = (f64::INFINITY, f64::INFINITY);
         let mut taken = 0;
-        while taken < steps
-            || (may_go_on
-                && taken < CONVERGE_MAX_STEPS
-                && fall.is_finite()
-                && fall
-                    >= if taken == steps {
-                        CONVERGE_TRIGGER
-                    } else {
-                        CONVERGE_TOLERANCE
-                    })
-        {
+        loop {
+            // The step after the ones asked for needs a large fall; each one after it, any fall
+            // over the tolerance.
+            let needed_fall = if taken == steps {
+                CONVERGE_TRIGGER
+            } else {
+                CONVERGE_TOLERANCE
+            };
+            let settling =
+                may_go_on && taken < CONVERGE_MAX_STEPS && fall.is_finite() && fall >= needed_fall;
+            if taken >= steps && !settling {
+                break;
+            }
             lights = self.assign_spherical_once(image, half);
             let e = self.kmeans_energy();
             fall = (energy - e) / e;
