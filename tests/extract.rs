@@ -1198,17 +1198,7 @@ fn the_default_is_near_the_k_means_floor_on_every_map() {
 #[test]
 fn a_low_clear_sun_at_256_lights_is_near_the_k_means_floor() {
     let sky = hard_sky("sky-low-clear");
-    let reference = IrradianceReference::from_map(&sky, Domain::Sphere);
-    let err = |ex: &mut Extractor, m| {
-        reference
-            .error(&ex.extract(&sky, &opts(256, Domain::Sphere, m)).lights)
-            .rel_rms
-    };
-    let floor = err(&mut Extractor::new(), Method::KMeans);
-    let with = err(&mut Extractor::new(), Method::Voronoi) / floor;
-    let mut no_split = Extractor::new();
-    no_split.set_swap_rounds(0);
-    let without = err(&mut no_split, Method::Voronoi) / floor;
+    let (with, without) = default_over_floor(&sky, 256, |ex| ex.set_swap_rounds(0));
     eprintln!("sky-low-clear N=256: {with:.3} × k-means, {without:.3} × without the split");
     assert!(with <= 1.25, "{with:.3} × k-means");
     assert!(
@@ -1226,17 +1216,7 @@ fn a_low_clear_sun_at_256_lights_is_near_the_k_means_floor() {
 fn a_softbox_studio_at_256_lights_takes_the_steps_it_needs() {
     use vemlight::eval::scenes::{LampScene, lamp_scene};
     let map = lamp_scene(LampScene::Softboxes, 3, 1024);
-    let reference = IrradianceReference::from_map(&map, Domain::Sphere);
-    let err = |ex: &mut Extractor, m| {
-        reference
-            .error(&ex.extract(&map, &opts(256, Domain::Sphere, m)).lights)
-            .rel_rms
-    };
-    let floor = err(&mut Extractor::new(), Method::KMeans);
-    let with = err(&mut Extractor::new(), Method::Voronoi) / floor;
-    let mut two_steps = Extractor::new();
-    two_steps.set_converge(false);
-    let without = err(&mut two_steps, Method::Voronoi) / floor;
+    let (with, without) = default_over_floor(&map, 256, |ex| ex.set_converge(false));
     eprintln!("softbox studio N=256: {with:.3} × k-means, {without:.3} × with two steps");
     assert!(with <= 1.25, "{with:.3} × k-means");
     assert!(
@@ -1246,8 +1226,8 @@ fn a_softbox_studio_at_256_lights_takes_the_steps_it_needs() {
 }
 
 /// The default's diffuse error at `n` lights over converged k-means's (the floor, ALGORITHMS.md
-/// §10): with the starts of a single map, and from the count's own start alone.
-fn starts_over_floor(map: &EnvMap, n: usize) -> (f64, f64) {
+/// §10): as it is, and with `without` switching a rule of the default off.
+fn default_over_floor(map: &EnvMap, n: usize, without: impl FnOnce(&mut Extractor)) -> (f64, f64) {
     let reference = IrradianceReference::from_map(map, Domain::Sphere);
     let error = |ex: &mut Extractor, m| {
         reference
@@ -1256,9 +1236,14 @@ fn starts_over_floor(map: &EnvMap, n: usize) -> (f64, f64) {
     };
     let floor = error(&mut Extractor::new(), Method::KMeans);
     let with = error(&mut Extractor::new(), Method::Voronoi) / floor;
-    let mut own_start = Extractor::new();
-    own_start.set_other_starts(false);
-    (with, error(&mut own_start, Method::Voronoi) / floor)
+    let mut off = Extractor::new();
+    without(&mut off);
+    (with, error(&mut off, Method::Voronoi) / floor)
+}
+
+/// [`default_over_floor`] with the starts of a single map, and from the count's own start alone.
+fn starts_over_floor(map: &EnvMap, n: usize) -> (f64, f64) {
+    default_over_floor(map, n, |ex| ex.set_other_starts(false))
 }
 
 /// Two starts (ALGORITHMS.md §4.2): at 16 lights the default's own start leaves night.exr and the

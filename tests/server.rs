@@ -530,9 +530,7 @@ async fn post_with_max_error_returns_the_fewest_lights_meeting_it() {
         .send()
         .await
         .unwrap();
-    assert_eq!(resp.status(), 200);
-    let doc: serde_json::Value = resp.json().await.unwrap();
-    assert_valid(&lightset_validator(), &doc);
+    let doc = valid_lightset(resp).await;
     let d = &doc["diagnostics"];
     let n = doc["lights"].as_array().unwrap().len();
     assert_eq!(d["lights_chosen"], n, "{d}");
@@ -563,6 +561,14 @@ fn cli_lightset(path: &std::path::Path, args: &[&str]) -> serde_json::Value {
         String::from_utf8_lossy(&out.stderr)
     );
     serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// A 200 answer's LightSet, checked against the schema.
+async fn valid_lightset(resp: reqwest::Response) -> serde_json::Value {
+    assert_eq!(resp.status(), 200);
+    let doc: serde_json::Value = resp.json().await.unwrap();
+    assert_valid(&lightset_validator(), &doc);
+    doc
 }
 
 async fn problem(resp: reqwest::Response, status: u16) -> serde_json::Value {
@@ -1155,9 +1161,7 @@ async fn source_failures_are_reported_and_the_last_set_is_served() {
         .send()
         .await
         .unwrap();
-    assert_eq!(latest.status(), 200);
-    let doc: serde_json::Value = latest.json().await.unwrap();
-    assert_valid(&lightset_validator(), &doc);
+    let doc = valid_lightset(latest).await;
     let m = metrics_text(&c, &url).await;
     assert!(m.contains("vemlight_source_errors_total 1"), "{m}");
     assert!(m.contains("vemlight_frames_captured_total 9"), "{m}");
