@@ -151,8 +151,16 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
     )?;
     let accuracy_md = accuracy_markdown(&rows, &domains);
     write(&opts.out.join("accuracy.md"), &accuracy_md)?;
-    let per_map_md = per_map::markdown(&rows);
+    let per_map_md = per_map::markdown(&rows, Domain::Sphere);
     write(&opts.out.join("per_map.md"), &per_map_md)?;
+    // The upper hemisphere, a sky camera's domain, where `--upper` measured it.
+    let per_map_upper_md = if opts.upper {
+        let md = per_map::markdown(&rows, Domain::Upper);
+        write(&opts.out.join("per_map_upper.md"), &md)?;
+        md
+    } else {
+        String::new()
+    };
 
     // 1b. The placement frontier of the default method (diffuse against shadowed).
     bar.set_message("placement frontier");
@@ -303,10 +311,13 @@ pub fn run(opts: &EvalOptions) -> anyhow::Result<String> {
         ] {
             text = replace_section(&text, name, body);
         }
+        if opts.upper {
+            text = replace_section(&text, "per-map-upper", &per_map_upper_md);
+        }
         write(doc, &text)?;
     }
     Ok(format!(
-        "{accuracy_md}\n{per_map_md}\n{between_md}\n{frontier_md}\n{budget_md}\n{temporal_md}\n{run_md}"
+        "{accuracy_md}\n{per_map_md}\n{per_map_upper_md}\n{between_md}\n{frontier_md}\n{budget_md}\n{temporal_md}\n{run_md}"
     ))
 }
 

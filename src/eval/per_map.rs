@@ -11,15 +11,16 @@ use crate::envmap::EnvMap;
 use crate::lights::{ExtractOptions, Extractor, Method, Placement};
 use crate::mapping::Domain;
 
-/// The rows of one (method, N) on the sphere domain, by map.
-fn row<'a>(
+/// The row of one (map, method, N) in `domain`.
+fn row_in<'a>(
     rows: &'a [AccuracyRow],
+    domain: Domain,
     map: &str,
     method: Method,
     n: usize,
 ) -> Option<&'a AccuracyRow> {
     rows.iter().find(|r| {
-        r.domain == Domain::Sphere
+        r.domain == domain
             && r.map == map
             && r.method == method.name()
             && r.lights == Some(n)
@@ -48,9 +49,27 @@ fn median(mut v: Vec<f64>) -> f64 {
     super::speed::median(&mut v)
 }
 
-/// per_map.md: one table per N (16, 64, 256 where measured), then the targets per N.
-pub fn markdown(rows: &[AccuracyRow]) -> String {
+/// The row of one (map, method, N) on the sphere domain.
+fn row<'a>(
+    rows: &'a [AccuracyRow],
+    map: &str,
+    method: Method,
+    n: usize,
+) -> Option<&'a AccuracyRow> {
+    row_in(rows, Domain::Sphere, map, method, n)
+}
+
+/// per_map.md: one table per N (16, 64, 256 where measured), then the targets per N, in
+/// `domain`: the whole sphere (a lat-long map's), or the upper hemisphere, the domain of a sky
+/// camera's fisheye (`vemlight eval --upper`), whose truth, k-means floor and median cut see
+/// only the light from above the horizon.
+pub fn markdown(rows: &[AccuracyRow], domain: Domain) -> String {
     let maps = maps_of(rows);
+    let row = |rows, map: &str, method, n| row_in(rows, domain, map, method, n);
+    let within = match domain {
+        Domain::Sphere => "whole sphere",
+        Domain::Upper => "upper hemisphere",
+    };
     let ratio_methods = [
         Method::Voronoi,
         Method::MedianCut,
@@ -76,7 +95,7 @@ pub fn markdown(rows: &[AccuracyRow]) -> String {
             continue;
         }
         s += &format!(
-            "\n**N = {n}**, whole sphere. Diffuse: ratio to converged k-means (the floor; its own error in the k-means column). Shadowed: relative RMS on the ground of the three occluder scenes (mean over scenes). Energy: lights that carry energy, default method.\n\n| map | {} | k-means | {} | energy |\n|---|{}---|{}---|\n",
+            "\n**N = {n}**, {within}. Diffuse: ratio to converged k-means (the floor; its own error in the k-means column). Shadowed: relative RMS on the ground of the three occluder scenes (mean over scenes). Energy: lights that carry energy, default method.\n\n| map | {} | k-means | {} | energy |\n|---|{}---|{}---|\n",
             ratio_methods.map(|m| format!("{} ×", m.name())).join(" | "),
             shadow_methods
                 .map(|m| format!("{} shadowed", m.name()))
@@ -122,7 +141,7 @@ pub fn markdown(rows: &[AccuracyRow]) -> String {
         );
     }
 
-    s += "\n**Targets per N**, default method, every map (sphere): diffuse ≤ 1.25 × k-means, shadowed ≤ median cut's, every light with energy.\n\n| N | worst diffuse / k-means | median | maps with shadowed > median cut's (worst ratio) | lights with energy, fewest | met? |\n|---|---|---|---|---|---|\n";
+    s += &format!("\n**Targets per N**, default method, every map ({within}): diffuse ≤ 1.25 × k-means, shadowed ≤ median cut's, every light with energy.\n\n| N | worst diffuse / k-means | median | maps with shadowed > median cut's (worst ratio) | lights with energy, fewest | met? |\n|---|---|---|---|---|---|\n");
     for n in SHADOW_COUNTS {
         if row(rows, &maps[0], Method::Voronoi, n).is_none() {
             continue;
