@@ -16,8 +16,8 @@ use crate::mapping::Domain;
 
 /// The counts measured: one past each power of two where a rule switches, the geometric
 /// midpoints between the powers, and the quarter points from 16 to 64 lights, where a miss at
-/// one count sits beside counts that meet every target (overcast-plaza at 40 lights, 1.23 ×
-/// median cut's shadowed error; 0.74 and 0.64 × at 39 and 41).
+/// one count sits beside counts that meet every target (overcast-plaza at 40 lights was 1.23 ×
+/// median cut's shadowed error, 0.74 and 0.64 × at 39 and 41).
 pub const BETWEEN_COUNTS: [usize; 12] = [17, 20, 24, 28, 33, 40, 48, 56, 65, 96, 129, 192];
 
 /// The counts of a smoke run (`vemlight eval --quick`).

@@ -20,10 +20,7 @@ fn row_in<'a>(
     n: usize,
 ) -> Option<&'a AccuracyRow> {
     rows.iter().find(|r| {
-        r.domain == domain
-            && r.map == map
-            && r.method == method.name()
-            && r.lights == Some(n)
+        r.domain == domain && r.map == map && r.method == method.name() && r.lights == Some(n)
     })
 }
 
@@ -141,7 +138,9 @@ pub fn markdown(rows: &[AccuracyRow], domain: Domain) -> String {
         );
     }
 
-    s += &format!("\n**Targets per N**, default method, every map ({within}): diffuse ≤ 1.25 × k-means, shadowed ≤ median cut's, every light with energy.\n\n| N | worst diffuse / k-means | median | maps with shadowed > median cut's (worst ratio) | lights with energy, fewest | met? |\n|---|---|---|---|---|---|\n");
+    s += &format!(
+        "\n**Targets per N**, default method, every map ({within}): diffuse ≤ 1.25 × k-means, shadowed ≤ median cut's, every light with energy.\n\n| N | worst diffuse / k-means | median | maps with shadowed > median cut's (worst ratio) | lights with energy, fewest | met? |\n|---|---|---|---|---|---|\n"
+    );
     for n in SHADOW_COUNTS {
         if row(rows, &maps[0], Method::Voronoi, n).is_none() {
             continue;

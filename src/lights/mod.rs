@@ -253,6 +253,9 @@ pub struct Extractor {
     moves_scratch: Vec<f32>,
     /// Swap rounds of a single map's Lloyd steps (see [`set_swap_rounds`](Self::set_swap_rounds)).
     swap_rounds: usize,
+    /// Whether a single map's lights are also made without the swap rounds and the better kept
+    /// (see [`set_unswapped_check`](Self::set_unswapped_check)).
+    unswapped_check: bool,
     /// Whether a single map also starts from the warps of [`other_starts`] (see
     /// [`set_other_starts`](Self::set_other_starts)).
     other_starts: bool,
@@ -332,6 +335,13 @@ enum SeedOrigin {
 /// up to [`SWAP_MAX_LIGHTS`] lights: the largest worst-map gain per millisecond measured
 /// (docs/EVALUATION.md "Swaps").
 pub const SWAP_ROUNDS: usize = 4;
+/// How much lower the `--max-error` reference must estimate a single map's lights made without
+/// the swap rounds for them to replace the swapped ones (ALGORITHMS.md §4.2, "Swaps"). The swap
+/// rounds were kept for their worst case over many maps on the sphere, and that reference errs
+/// by several per cent itself (7 % on pm-lab's final lights): with no margin two sphere cases
+/// were replaced by lights with more shadowed error (EVALUATION.md, "The upper hemisphere").
+const UNSWAPPED_MARGIN: f64 = 0.1;
+
 /// Above this many lights the swap rounds are skipped: a poor basin costs little there (every map
 /// within 1.1 × the k-means floor at 256 lights without them) and a round costs the most.
 pub const SWAP_MAX_LIGHTS: usize = 64;
@@ -912,6 +922,7 @@ impl Default for Extractor {
             moves: Vec::new(),
             moves_scratch: Vec::new(),
             swap_rounds: SWAP_ROUNDS,
+            unswapped_check: true,
             other_starts: true,
             tilt: true,
             core_split: true,
@@ -943,6 +954,13 @@ impl Extractor {
     /// take none: a swap is a jump.
     pub fn set_swap_rounds(&mut self, rounds: usize) {
         self.swap_rounds = rounds;
+    }
+
+    /// Whether a single map's default lights of up to [`SWAP_MAX_LIGHTS`] are also made without
+    /// the swap rounds, and those kept where the `--max-error` reference estimates them better
+    /// (ALGORITHMS.md §4.2, "Swaps"; default on).
+    pub fn set_unswapped_check(&mut self, on: bool) {
+        self.unswapped_check = on;
     }
 
     /// A single map of at most `STEPS_MAX_LIGHTS` default lights also starts from other warps
@@ -1257,6 +1275,9 @@ impl Extractor {
             self.assign_paper(image)
         } else {
             let mut lights = self.assign_spherical(image, method == Method::Voronoi);
+            if method == Method::Voronoi {
+                self.keep_unswapped_if_better(image, &mut lights);
+            }
             // A cell's disc stays on its side of the horizon (ALGORITHMS.md §12).
             for l in &mut lights {
                 let gap = horizon_gap(l.to_light);
@@ -1267,6 +1288,32 @@ impl Extractor {
         };
         self.remember(method, image, &lights);
         lights
+    }
+
+    /// A single map's lights of up to [`SWAP_MAX_LIGHTS`] are also made without the swap rounds,
+    /// and those lights kept where the finer reference of `--max-error` (64² bins of the
+    /// full-resolution square, 256 normals) estimates their diffuse error lower (ALGORITHMS.md
+    /// §4.2, "Swaps"). A swap is kept when the k-means energy falls, and the starts are chosen on
+    /// the half-resolution fixed points; neither sees a merge of two compact sources a few degrees
+    /// apart, whose one light errs along both terminators (first order in their separation where
+    /// the energy is second order), nor what the final assignment and the tilt make of a start.
+    fn keep_unswapped_if_better(&mut self, image: &DomainImage, lights: &mut Vec<Light>) {
+        let single = self.seed_origin == SeedOrigin::Warp;
+        if !(self.unswapped_check
+            && single
+            && self.swap_rounds > 0
+            && (3..=SWAP_MAX_LIGHTS).contains(&lights.len()))
+        {
+            return;
+        }
+        let rounds = std::mem::replace(&mut self.swap_rounds, 0);
+        let unswapped = self.assign_spherical(image, true);
+        self.swap_rounds = rounds;
+        let reference = IrradianceReference::from_domain_image(image);
+        let kept = reference.error(lights).rel_rms;
+        if reference.error(&unswapped).rel_rms < (1.0 - UNSWAPPED_MARGIN) * kept {
+            *lights = unswapped;
+        }
     }
 
     /// In video mode, keeps the default method's lights as the next frame's seeds.
