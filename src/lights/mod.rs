@@ -957,8 +957,8 @@ impl Extractor {
     }
 
     /// Whether a single map's default lights of up to [`SWAP_MAX_LIGHTS`] are also made without
-    /// the swap rounds, and those kept where the `--max-error` reference estimates them better
-    /// (ALGORITHMS.md §4.2, "Swaps"; default on).
+    /// the swap rounds, and those kept where the `--max-error` reference estimates them at least
+    /// 10 % better (ALGORITHMS.md §4.2, "Swaps"; default on).
     pub fn set_unswapped_check(&mut self, on: bool) {
         self.unswapped_check = on;
     }
@@ -1292,8 +1292,8 @@ impl Extractor {
 
     /// A single map's lights of up to [`SWAP_MAX_LIGHTS`] are also made without the swap rounds,
     /// and those lights kept where the finer reference of `--max-error` (64² bins of the
-    /// full-resolution square, 256 normals) estimates their diffuse error lower (ALGORITHMS.md
-    /// §4.2, "Swaps"). A swap is kept when the k-means energy falls, and the starts are chosen on
+    /// full-resolution square, 256 normals) estimates their diffuse error lower by at least
+    /// [`UNSWAPPED_MARGIN`] (ALGORITHMS.md §4.2, "Swaps"). A swap is kept when the k-means energy falls, and the starts are chosen on
     /// the half-resolution fixed points; neither sees a merge of two compact sources a few degrees
     /// apart, whose one light errs along both terminators (first order in their separation where
     /// the energy is second order), nor what the final assignment and the tilt make of a start.
