@@ -46,16 +46,6 @@ fn median(mut v: Vec<f64>) -> f64 {
     super::speed::median(&mut v)
 }
 
-/// The row of one (map, method, N) on the sphere domain.
-fn row<'a>(
-    rows: &'a [AccuracyRow],
-    map: &str,
-    method: Method,
-    n: usize,
-) -> Option<&'a AccuracyRow> {
-    row_in(rows, Domain::Sphere, map, method, n)
-}
-
 /// per_map.md: one table per N (16, 64, 256 where measured), then the targets per N, in
 /// `domain`: the whole sphere (a lat-long map's), or the upper hemisphere, the domain of a sky
 /// camera's fisheye (`vemlight eval --upper`), whose truth, k-means floor and median cut see
@@ -230,8 +220,8 @@ pub fn frontier(
         for ((name, map), truth) in maps.iter().zip(truths) {
             for &n in counts {
                 let (Some(k), Some(mc)) = (
-                    row(rows, name, Method::KMeans, n),
-                    row(rows, name, Method::MedianCut, n),
+                    row_in(rows, Domain::Sphere, name, Method::KMeans, n),
+                    row_in(rows, Domain::Sphere, name, Method::MedianCut, n),
                 ) else {
                     continue;
                 };
